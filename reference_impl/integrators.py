@@ -1,0 +1,186 @@
+"""The lecture's integrators of the free rigid body, each selectable by name.
+
+State Y = (x, R or q, p, L); dY/dt = (v, [w] R, f, tau) with v = p / M, I(t) = R I_b R^T,
+w = I(t)^-1 L, f = sum f_i + M g, tau = sum (r_i - x) x f_i (see :mod:`dynamics`).
+
+Integrators (``INTEGRATORS[name]``):
+
+- ``euler-matrix``: explicit Euler on (x, R, p, L), R a 3x3 matrix with no correction.
+- ``euler-matrix-gs``: the same, with Gram-Schmidt re-orthonormalisation of R after each step.
+- ``euler-quat``: explicit Euler on (x, q, p, L), q renormalised after each step.
+- ``symplectic-euler``: momenta first, then positions with the new velocities; the rotation by the
+  world-frame exponential map q+ = Exp(h w+) q with w+ = R I_b^-1 R^T L+ (current R).
+- ``semi-implicit-explicit-gyro``: the engines' map in body-frame variables (MuJoCo ``Euler``,
+  PyBullet multibody, DART): w_b+ = w_b + h I^-1 (tau_b - w_b x I w_b), v+ = v + h (f/M + g),
+  x+ = x + h v+, q+ = q Exp(h w_b+).
+- ``semi-implicit-implicit-gyro``: the same with the gyroscopic term linearised implicitly
+  (MuJoCo ``implicit``/``implicitfast``/``discrete``, PyBullet maximal coordinates):
+  J = I + h ([w_b] I - [I w_b]), w_b+ = w_b + J^-1 h (tau_b - w_b x I w_b).
+- ``rk4``: classic fourth-order Runge-Kutta on (x, q, p, L), q renormalised after each step.
+
+Loads are held constant over a step (every RK4 stage sees the same active set; a load's torque
+arm is evaluated at the stage's state).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .conventions import Trajectory
+from .dynamics import Wrench, rigid_body_derivative, wrench_function
+from .problem import Problem
+from .rotations import (gram_schmidt, matrix_from_quat, nearest_rotation, orthonormality_error,
+                        quat_from_matrix, quat_from_rotvec, quat_multiply, quat_normalize, skew)
+
+
+@dataclass(frozen=True)
+class Integrator:
+    """A named integrator.
+
+    name : the name used on the command line and in results.json.
+    order : its formal order of accuracy in dt.
+    uses_matrix : True when it integrates R as a 3x3 matrix (reports orthonormality error).
+    summary : one line for ``freebody list`` and reports.
+    """
+
+    name: str
+    order: int
+    uses_matrix: bool
+    summary: str
+    simulate: Callable[[Problem, float, int], Trajectory]
+
+
+def _initial(problem: Problem):
+    """(M, I_b, I_b^-1, x0, q0, R0, p0, L0, v0, w0) in canonical frames."""
+    body, init = problem.body, problem.initial
+    M = body.mass
+    I_b = body.I_body
+    q0 = quat_normalize(init.quaternion_wxyz)
+    R0 = matrix_from_quat(q0)
+    w0 = np.array(init.angular_velocity, dtype=float)
+    v0 = np.array(init.linear_velocity, dtype=float)
+    L0 = R0 @ I_b @ R0.T @ w0
+    return M, I_b, body.I_body_inv, np.array(init.position, float), q0, R0, M * v0, L0, v0, w0
+
+
+def _time(dt: float, steps: int) -> np.ndarray:
+    return np.arange(steps + 1) * dt
+
+
+# --- momentum-form integrators on (x, R or q, p, L) -------------------------------------------
+
+def _simulate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool) -> Trajectory:
+    M, I_b, I_inv, x, q, R, p, L, _, _ = _initial(problem)
+    wrench = wrench_function(problem, dt)
+    Mg = M * problem.gravity
+    xs = np.empty((steps + 1, 3)); Rs = np.empty((steps + 1, 3, 3))
+    ps = np.empty((steps + 1, 3)); Ls = np.empty((steps + 1, 3))
+    xs[0], Rs[0], ps[0], Ls[0] = x, R, p, L
+    for k in range(steps):
+        f, tau = wrench(k, x, R)
+        w = R @ I_inv @ R.T @ L  # I(t)^-1 L with R as integrated
+        x, R, p, L = x + dt * p / M, R + dt * skew(w) @ R, p + dt * (f + Mg), L + dt * tau
+        if gram:
+            R = gram_schmidt(R)
+        xs[k + 1], Rs[k + 1], ps[k + 1], Ls[k + 1] = x, R, p, L
+    ws = np.einsum("nij,jk,nlk,nl->ni", Rs, I_inv, Rs, Ls)
+    quats = quat_from_matrix(nearest_rotation(Rs))
+    return Trajectory(_time(dt, steps), xs, quats, ps / M, ws, orthonormality_error(Rs))
+
+
+def _simulate_quat(problem: Problem, dt: float, steps: int, scheme: str) -> Trajectory:
+    """euler-quat, symplectic-euler and rk4: all on (x, q, p, L)."""
+    M, I_b, I_inv, x, q, _, p, L, _, _ = _initial(problem)
+    wrench = wrench_function(problem, dt)
+    g = problem.gravity
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0] = x, q, p / M
+    out.angular_velocity[0] = np.array(problem.initial.angular_velocity, float)
+    for k in range(steps):
+        if scheme == "euler-quat":
+            dx, dq, dp, dL = rigid_body_derivative(k, x, q, p, L, M, I_inv, g, wrench)
+            x, q, p, L = x + dt * dx, quat_normalize(q + dt * dq), p + dt * dp, L + dt * dL
+        elif scheme == "symplectic-euler":
+            R = matrix_from_quat(q)
+            f, tau = wrench(k, x, R)
+            p = p + dt * (f + M * g)
+            L = L + dt * tau
+            x = x + dt * p / M
+            w = R @ I_inv @ R.T @ L
+            q = quat_normalize(quat_multiply(quat_from_rotvec(dt * w), q))
+        else:  # rk4
+            def d(x_, q_, p_, L_):
+                return rigid_body_derivative(k, x_, q_, p_, L_, M, I_inv, g, wrench)
+            k1 = d(x, q, p, L)
+            k2 = d(*(y + 0.5 * dt * dy for y, dy in zip((x, q, p, L), k1)))
+            k3 = d(*(y + 0.5 * dt * dy for y, dy in zip((x, q, p, L), k2)))
+            k4 = d(*(y + dt * dy for y, dy in zip((x, q, p, L), k3)))
+            x, q, p, L = (y + dt / 6.0 * (a + 2 * b + 2 * c + e)
+                          for y, a, b, c, e in zip((x, q, p, L), k1, k2, k3, k4))
+            q = quat_normalize(q)
+        R = matrix_from_quat(q)
+        out.position[k + 1], out.quaternion_wxyz[k + 1] = x, q
+        out.linear_velocity[k + 1] = p / M
+        out.angular_velocity[k + 1] = R @ I_inv @ R.T @ L
+    out.t[:] = _time(dt, steps)
+    return out
+
+
+# --- the engines' semi-implicit maps, in body-frame variables (x, q, v, w_b) ---------------------
+
+def _simulate_semi_implicit(problem: Problem, dt: float, steps: int, implicit_gyro: bool) -> Trajectory:
+    M, I_b, I_inv, x, q, R, _, _, v, w = _initial(problem)
+    wrench = wrench_function(problem, dt)
+    g = problem.gravity
+    w_b = R.T @ w
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
+    for k in range(steps):
+        R = matrix_from_quat(q)
+        f, tau = wrench(k, x, R)
+        tau_b = R.T @ tau
+        rhs = tau_b - np.cross(w_b, I_b @ w_b)
+        if implicit_gyro:
+            J = I_b + dt * (skew(w_b) @ I_b - skew(I_b @ w_b))
+            w_b = w_b + np.linalg.solve(J, dt * rhs)
+        else:
+            w_b = w_b + dt * (I_inv @ rhs)
+        v = v + dt * (f / M + g)
+        x = x + dt * v
+        q = quat_normalize(quat_multiply(q, quat_from_rotvec(dt * w_b)))
+        out.position[k + 1], out.quaternion_wxyz[k + 1], out.linear_velocity[k + 1] = x, q, v
+        out.angular_velocity[k + 1] = matrix_from_quat(q) @ w_b
+    out.t[:] = _time(dt, steps)
+    return out
+
+
+INTEGRATORS: dict[str, Integrator] = {
+    i.name: i for i in [
+        Integrator("euler-matrix", 1, True, "explicit Euler, R as a 3x3 matrix, no correction",
+                   lambda pb, dt, n: _simulate_euler_matrix(pb, dt, n, gram=False)),
+        Integrator("euler-matrix-gs", 1, True, "explicit Euler, R re-orthonormalised by Gram-Schmidt",
+                   lambda pb, dt, n: _simulate_euler_matrix(pb, dt, n, gram=True)),
+        Integrator("euler-quat", 1, False, "explicit Euler on a renormalised quaternion",
+                   lambda pb, dt, n: _simulate_quat(pb, dt, n, "euler-quat")),
+        Integrator("symplectic-euler", 1, False, "momenta first, then x and q by the exponential map",
+                   lambda pb, dt, n: _simulate_quat(pb, dt, n, "symplectic-euler")),
+        Integrator("semi-implicit-explicit-gyro", 1, False,
+                   "engines' map: body-frame w, explicit gyroscopic term (MuJoCo Euler, PyBullet, DART)",
+                   lambda pb, dt, n: _simulate_semi_implicit(pb, dt, n, implicit_gyro=False)),
+        Integrator("semi-implicit-implicit-gyro", 1, False,
+                   "engines' map: body-frame w, gyroscopic term linearised implicitly (MuJoCo implicit)",
+                   lambda pb, dt, n: _simulate_semi_implicit(pb, dt, n, implicit_gyro=True)),
+        Integrator("rk4", 4, False, "classic Runge-Kutta 4 on (x, q, p, L), q renormalised",
+                   lambda pb, dt, n: _simulate_quat(pb, dt, n, "rk4")),
+    ]
+}
+
+
+def simulate(problem: Problem, integrator: str, dt: float, steps: int) -> Trajectory:
+    """Integrate ``problem`` for ``steps`` steps of ``dt`` with the named integrator."""
+    return INTEGRATORS[integrator].simulate(problem, dt, steps)
+
+
+__all__ = ["Integrator", "INTEGRATORS", "simulate", "Wrench"]
