@@ -1,0 +1,1 @@
+"""The bundled case files (TOML), shipped as package data of ``freebody.cases``."""

@@ -1,0 +1,141 @@
+"""Metrics of a run against its truth, and the one place that decides a run's divergence.
+
+All series are arrays of shape (N,) over the samples t_k; maxima and finals are floats or None
+(None where a value is undefined, e.g. a relative error whose scale is zero).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .reference_impl.conventions import Trajectory, angular_momentum, kinetic_energy, potential_energy
+from .reference_impl.problem import Problem
+from .reference_impl.rotations import geodesic_angle
+from . import tolerances as tol
+
+METRIC_KEYS = (
+    "orientation_error_max_rad",
+    "orientation_error_final_rad",
+    "angular_momentum_error_max_rel",
+    "energy_error_max_rel",
+    "position_error_max_m",
+    "rotation_orthonormality_error_max",
+)
+
+
+@dataclass(frozen=True)
+class Series:
+    """Per-sample errors of a run, shape (N,) each.
+
+    orientation_error : rad, geodesic angle to the truth.
+    angular_momentum_error : |L - L_truth| / max_t |L_truth| (or kg m^2/s absolute if that is 0).
+    energy_error : |E - E_truth| / max_t KE_truth (or J absolute if that is 0).
+    position_error : m, |x - x_truth|.
+    """
+
+    t: np.ndarray
+    orientation_error: np.ndarray
+    angular_momentum_error: np.ndarray
+    energy_error: np.ndarray
+    position_error: np.ndarray
+    angular_momentum_relative: bool
+    energy_relative: bool
+
+
+def energies(problem: Problem, tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+    """(kinetic (N,), total (N,)) energy in J of a trajectory, canonical formulas."""
+    M, I_b = problem.body.mass, problem.body.I_body
+    ke = kinetic_energy(M, I_b, tr.quaternion_wxyz, tr.linear_velocity, tr.angular_velocity)
+    return ke, ke + potential_energy(M, problem.gravity, tr.position)
+
+
+def series(problem: Problem, tr: Trajectory, truth: Trajectory) -> Series:
+    n = len(tr)
+    truth = _head(truth, n)
+    I_b = problem.body.I_body
+    ori = geodesic_angle(truth.quaternion_wxyz, tr.quaternion_wxyz)
+    L = angular_momentum(I_b, tr.quaternion_wxyz, tr.angular_velocity)
+    L_true = angular_momentum(I_b, truth.quaternion_wxyz, truth.angular_velocity)
+    L_scale = float(np.max(np.linalg.norm(L_true, axis=-1)))
+    dL = np.linalg.norm(L - L_true, axis=-1)
+    _, E = energies(problem, tr)
+    ke_true, E_true = energies(problem, truth)
+    E_scale = float(np.max(ke_true))
+    dE = np.abs(E - E_true)
+    return Series(
+        t=tr.t, orientation_error=ori,
+        angular_momentum_error=dL / L_scale if L_scale > 0 else dL,
+        energy_error=dE / E_scale if E_scale > 0 else dE,
+        position_error=np.linalg.norm(tr.position - truth.position, axis=-1),
+        angular_momentum_relative=L_scale > 0, energy_relative=E_scale > 0,
+    )
+
+
+def summarize(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[dict, Series]:
+    """The results.json ``metrics`` dict (maxima and finals) and the per-sample series."""
+    s = series(problem, tr, truth)
+    m = {
+        "orientation_error_max_rad": _max(s.orientation_error),
+        "orientation_error_final_rad": _finite(s.orientation_error[-1]),
+        "angular_momentum_error_max_rel": _max(s.angular_momentum_error) if s.angular_momentum_relative else None,
+        "energy_error_max_rel": _max(s.energy_error) if s.energy_relative else None,
+        "position_error_max_m": _max(s.position_error),
+        "rotation_orthonormality_error_max": (
+            None if tr.orthonormality_error is None else _max(tr.orthonormality_error)),
+    }
+    if not s.angular_momentum_relative:
+        m["angular_momentum_error_max_abs"] = _max(s.angular_momentum_error)
+    if not s.energy_relative:
+        m["energy_error_max_abs_J"] = _max(s.energy_error)
+    return m, s
+
+
+def divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[float, str] | None:
+    """(time, reason) of the first sample that is non-finite or beyond the case's bounds, or None.
+
+    Bounds: kinetic energy > DIVERGENCE_ENERGY_FACTOR x the truth's max KE, |w| or |v| beyond
+    their factor x the truth's max (see :mod:`freebody.tolerances`).
+    """
+    n = len(tr)
+    truth = _head(truth, n)
+    arrays = (tr.position, tr.quaternion_wxyz, tr.linear_velocity, tr.angular_velocity)
+    bad = ~np.all(np.concatenate([np.isfinite(a) for a in arrays], axis=1), axis=1)
+    first = _first(bad)
+    if first is not None:
+        return float(tr.t[first]), "state is not finite (NaN or inf)"
+    ke, _ = energies(problem, tr)
+    ke_true, _ = energies(problem, truth)
+    ke_bound = tol.DIVERGENCE_ENERGY_FACTOR * max(float(np.max(ke_true)), tol.DIVERGENCE_ENERGY_FLOOR_J)
+    w_norm = np.linalg.norm(tr.angular_velocity, axis=1)
+    w_bound = tol.DIVERGENCE_OMEGA_FACTOR * max(float(np.max(np.linalg.norm(truth.angular_velocity, axis=1))), 1.0)
+    v_norm = np.linalg.norm(tr.linear_velocity, axis=1)
+    v_bound = tol.DIVERGENCE_VELOCITY_FACTOR * max(float(np.max(np.linalg.norm(truth.linear_velocity, axis=1))), 1.0)
+    for mask, why in ((ke > ke_bound, f"kinetic energy beyond {ke_bound:.3g} J"),
+                      (w_norm > w_bound, f"|w| beyond {w_bound:.3g} rad/s"),
+                      (v_norm > v_bound, f"|v| beyond {v_bound:.3g} m/s")):
+        first = _first(mask)
+        if first is not None:
+            return float(tr.t[first]), why
+    return None
+
+
+def _head(tr: Trajectory, n: int) -> Trajectory:
+    if len(tr) == n:
+        return tr
+    return Trajectory(tr.t[:n], tr.position[:n], tr.quaternion_wxyz[:n], tr.linear_velocity[:n],
+                      tr.angular_velocity[:n])
+
+
+def _first(mask: np.ndarray) -> int | None:
+    idx = np.flatnonzero(mask)
+    return int(idx[0]) if idx.size else None
+
+
+def _finite(x) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _max(a: np.ndarray) -> float | None:
+    return _finite(np.max(a)) if len(a) else None
