@@ -72,6 +72,9 @@ def quat_from_matrix(R: np.ndarray) -> np.ndarray:
     Rf = R.reshape(-1, 3, 3)
     out = np.empty((Rf.shape[0], 4))
     for i, M in enumerate(Rf):
+        if not np.all(np.isfinite(M)):
+            out[i] = np.nan
+            continue
         tr = M[0, 0] + M[1, 1] + M[2, 2]
         cands = np.array([tr, M[0, 0], M[1, 1], M[2, 2]])
         k = int(np.argmax(cands))
@@ -127,12 +130,19 @@ def geodesic_angle(q_a: np.ndarray, q_b: np.ndarray) -> np.ndarray:
 
 
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
-    """The rotation closest to M in the Frobenius norm (polar decomposition by SVD).  M: (..., 3, 3)."""
-    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=float))
+    """The rotation closest to M in the Frobenius norm (polar decomposition by SVD).  M: (..., 3, 3).
+
+    Non-finite matrices give NaN (a blown-up integration stays a value, not an exception).
+    """
+    M = np.asarray(M, dtype=float)
+    ok = np.all(np.isfinite(M), axis=(-2, -1))
+    out = np.full(M.shape, np.nan)
+    U, _, Vt = np.linalg.svd(M[ok])
     d = np.sign(np.linalg.det(U @ Vt))
     D = np.ones(U.shape[:-1])
     D[..., 2] = d
-    return (U * D[..., None, :]) @ Vt
+    out[ok] = (U * D[..., None, :]) @ Vt
+    return out
 
 
 def gram_schmidt(M: np.ndarray) -> np.ndarray:

@@ -1,0 +1,54 @@
+"""``freebody run``: run cases x engines x integrators x time steps, write results and a summary."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ..casefile import bundled_case_paths, load_case
+from ..runner import expand, select_engines
+from ..suite import run_specs
+from ..summary import summary_table
+
+DEFAULT_OUT = "reports/latest"
+
+
+def _positive_float(text: str) -> float:
+    import argparse
+    import math
+
+    try:
+        x = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(x) or x <= 0:
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return x
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("run", help="run cases on engines and write results, trajectories and a summary",
+                       description="Run CASE|PATH ... (default: every bundled case) on every selected "
+                                   "engine and integrator at every time step.")
+    p.add_argument("cases", nargs="*", metavar="CASE|PATH", help="bundled case names or TOML files")
+    p.add_argument("--engine", action="append", metavar="NAME",
+                   help="engine to run (repeatable); default: every available engine")
+    p.add_argument("--integrator", action="append", metavar="[ENGINE:]NAME",
+                   help="integrator (repeatable, case-insensitive); NAME applies to every engine "
+                        "offering it, ENGINE:NAME to one engine; default: all")
+    p.add_argument("--dt", action="append", type=_positive_float, metavar="DT",
+                   help="time step in s (repeatable); default: the case's")
+    p.add_argument("--duration", type=_positive_float, metavar="T", help="simulated time in s; default: the case's")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory (default {DEFAULT_OUT})")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+
+
+def run(args) -> int:
+    names = args.cases or list(bundled_case_paths())
+    problems = [load_case(n) for n in names]
+    engines = select_engines(args.engine)
+    specs = expand(problems, engines, args.integrator, args.dt, args.duration)
+    out_dir = Path(args.out)
+    doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet)
+    print(summary_table(doc["runs"]))
+    print(f"\nresults: {out_dir / 'results.json'}")
+    return 1 if any(r["status"] == "failed" for r in doc["runs"]) else 0

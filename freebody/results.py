@@ -1,0 +1,145 @@
+"""results.json (schema version 1) and the per-run trajectory files, written atomically.
+
+results.json::
+
+    {"schema_version": 1, "freebody_version", "created", "platform", "engines": {name: version},
+     "incomplete": false, "runs": [RunResult.to_json(), ...], ...}
+
+Written with sorted keys; non-finite numbers become null (the run's status says why).  Readers
+ignore keys they do not know.  A trajectory file (npz) holds the run's arrays and its truth's:
+``t (N,)``, ``position (N, 3)``, ``quaternion_wxyz (N, 4)``, ``linear_velocity (N, 3)``,
+``angular_velocity (N, 3)`` [, ``orthonormality_error (N,)``], and the same with a ``truth_`` prefix.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import tempfile
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import InputError
+from .reference_impl.conventions import Trajectory
+
+SCHEMA_VERSION = 1
+_FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
+
+
+def _sanitize(obj):
+    """Replace non-finite floats by None, numpy scalars/arrays by plain Python, recursively."""
+    if isinstance(obj, dict):
+        return {str(k): _sanitize(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_sanitize(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _sanitize(obj.tolist())
+    if isinstance(obj, np.generic):
+        return _sanitize(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write JSON (sorted keys, non-finite -> null) via a temporary file and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(_sanitize(data), sort_keys=True, indent=1, allow_nan=False) + "\n"
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def results_document(runs: list[dict], engines: dict[str, str | None], incomplete: bool = False,
+                     extra: dict | None = None) -> dict:
+    doc = {
+        "schema_version": SCHEMA_VERSION,
+        "freebody_version": __version__,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "platform": f"{platform.system()} {platform.machine()} Python {platform.python_version()}",
+        "engines": engines,
+        "incomplete": incomplete,
+        "runs": runs,
+    }
+    doc.update(extra or {})
+    return doc
+
+
+def trajectory_filename(run: dict) -> str:
+    name = f"{run['case']}__{run['engine']}__{run['integrator']}__{run.get('precision', 'float64')}__dt{run['dt']:g}"
+    return "trajectories/" + "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in name) + ".npz"
+
+
+def save_trajectory(out_dir: Path, relname: str, tr: Trajectory, truth: Trajectory | None,
+                    every: int = 1) -> None:
+    """Save a run's arrays (thinned to every ``every``-th sample) and its truth's, atomically."""
+    path = Path(out_dir) / relname
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {}
+    tr_s = tr.thinned(every) if every > 1 else tr
+    for f in _FIELDS:
+        arrays[f] = getattr(tr_s, f)
+    if tr_s.orthonormality_error is not None:
+        arrays["orthonormality_error"] = tr_s.orthonormality_error
+    if truth is not None:
+        n = len(tr)
+        truth_head = Trajectory(*(getattr(truth, f)[:n] for f in _FIELDS))
+        truth_s = truth_head.thinned(every) if every > 1 else truth_head
+        for f in _FIELDS:
+            arrays["truth_" + f] = getattr(truth_s, f)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
+    os.close(fd)
+    try:
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def load_trajectory(path: Path) -> tuple[Trajectory, Trajectory | None]:
+    """(run trajectory, truth trajectory or None) from a trajectory file."""
+    with np.load(path) as z:
+        tr = Trajectory(*(z[f] for f in _FIELDS),
+                        orthonormality_error=z["orthonormality_error"] if "orthonormality_error" in z else None)
+        truth = Trajectory(*(z["truth_" + f] for f in _FIELDS)) if "truth_t" in z else None
+    return tr, truth
+
+
+def load_results(path: str | Path) -> dict:
+    """Load a results.json (or a run directory holding one); InputError on anything unusable."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / "results.json"
+    try:
+        text = p.read_text()
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
+    try:
+        doc = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise InputError(f"{p}: not valid JSON: {e.msg} (line {e.lineno})") from None
+    if not isinstance(doc, dict) or "schema_version" not in doc:
+        raise InputError(f"{p}: schema_version: missing; not a freebody results file")
+    v = doc["schema_version"]
+    if v != SCHEMA_VERSION:
+        raise InputError(f"{p}: schema_version: is {v!r}, this freebody reads {SCHEMA_VERSION}; "
+                         f"re-run the runs with this version (freebody run ... --out DIR) or use the "
+                         f"freebody release that wrote it")
+    if not isinstance(doc.get("runs"), list):
+        raise InputError(f"{p}: runs: missing or not a list")
+    return doc

@@ -1,0 +1,48 @@
+"""The plain-text summary table printed by ``freebody run``."""
+from __future__ import annotations
+
+
+def fmt(x, spec: str = ".3e") -> str:
+    """A number in a fixed format, '-' for None (undefined or not applicable)."""
+    return "-" if x is None else format(x, spec)
+
+
+def run_label(run: dict) -> str:
+    """engine/integrator, with the precision when it is not float64."""
+    label = f"{run['engine']}/{run['integrator']}"
+    if run.get("precision", "float64") != "float64":
+        label += f"/{run['precision']}"
+    return label
+
+
+def summary_table(runs: list[dict]) -> str:
+    header = ("case", "engine/integrator", "dt", "status", "orient max", "L max rel", "E max rel",
+              "pos max m", "reproduces")
+    rows = []
+    for r in runs:
+        m = r.get("metrics") or {}
+        match = r.get("matches_reference")
+        if match:
+            shown = match.get("integrator") or f"none (closest {match.get('closest')})"
+            repro = f"{shown} {fmt(match.get('max_orientation_diff_rad'), '.1e')}"
+        else:
+            repro = ""
+        status = r["status"]
+        rows.append((r["case"], run_label(r), f"{r['dt']:g}", status,
+                     fmt(m.get("orientation_error_max_rad")), fmt(m.get("angular_momentum_error_max_rel")),
+                     fmt(m.get("energy_error_max_rel")), fmt(m.get("position_error_max_m")), repro))
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+    lines = ["  ".join(f"{h:<{w}}" for h, w in zip(header, widths)).rstrip()]
+    lines.append("  ".join("-" * w for w in widths))
+    for row in rows:
+        lines.append("  ".join(f"{c:<{w}}" for c, w in zip(row, widths)).rstrip())
+    notes = [f"  {r['case']} {run_label(r)} dt={r['dt']:g}: {r['status']}: {r['message']}"
+             for r in runs if r["status"] != "ok" and r.get("message")]
+    if notes:
+        lines.append("")
+        lines.append("not ok:")
+        lines.extend(dict.fromkeys(notes))
+    counts = {s: sum(r["status"] == s for r in runs) for s in ("ok", "diverged", "failed", "skipped")}
+    lines.append("")
+    lines.append(", ".join(f"{n} {s}" for s, n in counts.items()) + f" ({len(runs)} runs)")
+    return "\n".join(lines)
