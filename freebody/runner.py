@@ -200,6 +200,11 @@ class TruthCache:
 
 def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: bool = True) -> RunOutput:
     """Run one spec; never raises for an engine's failure (that is the run's status)."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        return _execute(spec, cache, identify_scheme)
+
+
+def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> RunOutput:
     cache = cache or TruthCache()
     pb = spec.problem
     base = dict(case=pb.name, engine=spec.engine, integrator=spec.integrator, precision=spec.precision,

@@ -71,7 +71,13 @@ def _time(dt: float, steps: int) -> np.ndarray:
 
 # --- momentum-form integrators on (x, R or q, p, L) -------------------------------------------
 
-def _simulate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool) -> Trajectory:
+def integrate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool = False):
+    """Explicit Euler on (x, R, p, L) with R a 3x3 matrix, optionally Gram-Schmidt after each step.
+
+    Returns the states as integrated: x (steps+1, 3) m world, R (steps+1, 3, 3) body -> world (it
+    drifts from orthonormal without Gram-Schmidt), p (steps+1, 3) kg m/s world, L (steps+1, 3)
+    kg m^2/s world about the COM.
+    """
     M, I_b, I_inv, x, q, R, p, L, _, _ = _initial(problem)
     wrench = wrench_function(problem, dt)
     Mg = M * problem.gravity
@@ -85,6 +91,12 @@ def _simulate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool) 
         if gram:
             R = gram_schmidt(R)
         xs[k + 1], Rs[k + 1], ps[k + 1], Ls[k + 1] = x, R, p, L
+    return xs, Rs, ps, Ls
+
+
+def _simulate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool) -> Trajectory:
+    xs, Rs, ps, Ls = integrate_euler_matrix(problem, dt, steps, gram)
+    M, I_inv = problem.body.mass, problem.body.I_body_inv
     ws = np.einsum("nij,jk,nlk,nl->ni", Rs, I_inv, Rs, Ls)
     quats = quat_from_matrix(nearest_rotation(Rs))
     return Trajectory(_time(dt, steps), xs, quats, ps / M, ws, orthonormality_error(Rs))
@@ -187,4 +199,4 @@ def simulate(problem: Problem, integrator: str, dt: float, steps: int) -> Trajec
         return INTEGRATORS[integrator].simulate(problem, dt, steps)
 
 
-__all__ = ["Integrator", "INTEGRATORS", "simulate", "Wrench"]
+__all__ = ["Integrator", "INTEGRATORS", "simulate", "integrate_euler_matrix", "Wrench"]
