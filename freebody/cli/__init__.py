@@ -1,22 +1,26 @@
 """The ``freebody`` command line: one module per subcommand.
 
-Each subcommand module defines ``add_parser(subparsers)`` and ``run(args) -> int``.  Bad input is an
-:class:`~freebody.errors.InputError`: one line on stderr, exit 2, no traceback (``--debug`` shows it).
+Each subcommand is a module ``freebody/cli/<name>_cmd.py`` that defines ``ORDER`` (its place in
+``--help``), ``add_parser(subparsers)`` and ``run(args) -> int``, and imports nothing heavy (no
+engine, no matplotlib) at module level.  Bad input is an :class:`~freebody.errors.InputError`:
+one line on stderr, exit 2, no traceback (``--debug`` shows it).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import pkgutil
 import sys
 import warnings
 
 from ..errors import InputError
 
-# subcommand -> module (imported only when chosen, so `freebody list` imports no engine)
-COMMANDS = {
-    "list": "list_cmd",
-    "run": "run_cmd",
-}
+
+def _commands() -> dict[str, object]:
+    """Subcommand modules (``*_cmd``) of this package, in their ORDER."""
+    mods = [importlib.import_module(f"{__name__}.{m.name}") for m in pkgutil.iter_modules(__path__)
+            if m.name.endswith("_cmd")]
+    return {m.__name__.rsplit(".", 1)[-1][:-4]: m for m in sorted(mods, key=lambda m: m.ORDER)}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -32,8 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"freebody {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks for errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for name, module in COMMANDS.items():
-        importlib.import_module(f"{__name__}.{module}").add_parser(sub)
+    for module in _commands().values():
+        module.add_parser(sub)
     return parser
 
 
@@ -48,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     warnings.showwarning = _warning_line
-    module = importlib.import_module(f"{__name__}.{COMMANDS[args.command]}")
+    module = _commands()[args.command]
     try:
         return int(module.run(args) or 0)
     except InputError as e:

@@ -1,6 +1,8 @@
 """``freebody list``: the bundled cases with their description and truth kind."""
 from __future__ import annotations
 
+ORDER = 10
+
 import textwrap
 
 from ..casefile import bundled_case_paths, load_case

@@ -1,6 +1,8 @@
 """``freebody run``: run cases x engines x integrators x time steps, write results and a summary."""
 from __future__ import annotations
 
+ORDER = 20
+
 import sys
 from pathlib import Path
 
