@@ -1,0 +1,386 @@
+"""PyBullet (Bullet 3) as a freebody engine: one free body, one DIRECT physics client per adapter.
+
+Integrators (PyBullet's two ways to build a free body, default first):
+
+- ``multibody``: a btMultiBody with a floating base (PyBullet's default).  Semi-implicit Euler with
+  an explicit gyroscopic term and an exponential-map rotation update: the map that freebody's
+  reference integrator ``semi-implicit-explicit-gyro`` implements.
+- ``maximal``: ``useMaximalCoordinates=True``, a btRigidBody.  The gyroscopic term is linearised
+  implicitly in the body frame (one Newton step, Bullet's BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_BODY);
+  torque-free it is the reference ``semi-implicit-implicit-gyro``.  An external torque's impulse
+  h I^-1 tau is added outside that implicit step (the reference puts it inside, through J^-1), so
+  under a torque the two maps differ by O(h^2 |w| |tau| / I).
+
+PyBullet's conventions and what this adapter converts:
+
+- Quaternions are Hamilton, scalar last ``(x, y, z, w)``, body -> world: converted with
+  ``quat_wxyz_from_xyzw`` / ``quat_xyzw_from_wxyz``.
+- ``getBaseVelocity`` / ``resetBaseVelocity``: linear velocity of the COM and angular velocity,
+  both in the WORLD frame: canonical, no conversion.
+- Inertia is diagonal only: ``localInertiaDiagonal`` (3,) kg m^2 in the principal frame whose
+  orientation in the link frame is ``baseInertialFrameOrientation``.  The adapter diagonalises
+  ``I_body = V diag(d) V^T`` (numpy ``eigh``, V made right-handed), uses the link frame as
+  freebody's body frame (COM at its origin: ``baseInertialFramePosition = 0``) and sets
+  ``baseInertialFrameOrientation = q_V``.
+- ``getBasePositionAndOrientation`` / ``resetBasePositionAndOrientation`` work on the pose of the
+  INERTIAL (COM, principal) frame, not the link frame: ``q_body = q_read * q_V^-1`` on read and
+  ``q_written = q_body * q_V`` on write; the position is the COM either way.
+- ``resetBasePositionAndOrientation`` zeroes the velocities: the adapter sets velocities after it.
+- Loads: ``applyExternalForce(..., flags=WORLD_FRAME)`` at a world point (the engine forms the
+  torque (point - COM) x f itself) and ``applyExternalTorque(..., flags=WORLD_FRAME)`` for couples
+  (world frame in both variants in PyBullet 3.2.7, checked by the tests).  Both last one
+  ``stepSimulation``.
+- Gravity: ``setGravity`` (engine gravity, world frame).
+
+Engine defaults the adapter changes (each read back, or probed, and recorded in ``settings``):
+time step (1/240 s -> dt), gravity ((0, 0, 0) -> the case's), inertia ((0, 0, 0) without a
+collision shape -> the principal moments), multibody linear and angular damping (0.04, a linear and
+a quadratic term -> 0), the multibody velocity clamp (+-100 on each world-frame base velocity
+coordinate, linear and angular -> +-MAX_COORDINATE_VELOCITY), sleeping (off by default in PyBullet
+3.2.7; set to ACTIVATION_STATE_DISABLE_SLEEPING).  PyBullet has no getter for damping, the clamp or
+the activation state: ``build`` proves the first two by one probe step (a spin about a principal axis
+above the clamp must keep its velocity exactly), then restores the initial state.
+
+Not fixable here: both variants cap the rotation of one step at pi/4 (|w| dt > pi/4 turns the body
+by less than |w| dt while the angular velocity read back is unchanged).  PyBullet signals no
+instability of its own; the harness detects divergence from the state.
+"""
+from __future__ import annotations
+
+import bisect
+import importlib.metadata
+from typing import ClassVar
+
+import numpy as np
+import pybullet
+
+from ..reference_impl.conventions import Trajectory, quat_wxyz_from_xyzw, quat_xyzw_from_wxyz
+from ..reference_impl.problem import Load
+from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_conjugate,
+                                        quat_from_matrix, quat_multiply, quat_normalize)
+from .base import Adapter
+
+# The multibody velocity clamp is lifted to this (rad/s on each world angular-velocity coordinate,
+# m/s on each linear one): far beyond any bound at which the harness declares a divergence.
+MAX_COORDINATE_VELOCITY = 1.0e6
+
+# Engine defaults PyBullet offers no getter for (values of PyBullet 3.2.7, checked by
+# tests/test_pybullet_adapter.py::test_engine_defaults_are_as_documented).
+DEFAULT_DAMPING = {"multibody": 0.04, "maximal": 0.0}
+DEFAULT_MAX_COORDINATE_VELOCITY = 100.0  # multibody only; maximal bodies have no clamp
+
+# Read-back tolerances.  Values set through the API come back bit-exact or to a few ulps; the probe
+# step of a spin about a principal axis keeps |w| to ~1e-14 relative (the gyroscopic term of a spin
+# about a rounded principal axis), while damping 0.04 or the clamp change it by > 1e-6 at any dt.
+_READBACK_RTOL = 1e-12
+_PROBE_RTOL = 1e-9
+_PROBE_SPEED = 300.0  # m/s and rad/s: one world coordinate >= 300 / sqrt(3) > 100 in any frame
+_INITIAL_STATE_TOL = 1e-9  # build() re-reads the initial state (the tests check 1e-12)
+
+
+class PybulletAdapter(Adapter):
+    name: ClassVar[str] = "pybullet"
+    import_name: ClassVar[str] = "pybullet"
+    install_hint: ClassVar[str] = "pip install pybullet"
+    integrators: ClassVar[tuple[str, ...]] = ("multibody", "maximal")
+    conventions: ClassVar[dict[str, str]] = {
+        "quaternion order": "(x, y, z, w), Hamilton, body -> world; converted to (w, x, y, z)",
+        "angular velocity frame": "world (getBaseVelocity/resetBaseVelocity), no conversion",
+        "pose read back": "getBasePositionAndOrientation returns the inertial (COM, principal) "
+                          "frame: body = read * inertial^-1",
+        "inertia input": "diagonal only (localInertiaDiagonal) in baseInertialFrameOrientation; "
+                         "freebody eigen-decomposes I_body (right-handed) and sets the principal "
+                         "frame quaternion; (0,0,0) without a collision shape until set",
+        "velocity clamp": "multibody: each world-frame base velocity coordinate (linear and "
+                          "angular) clamped to +-100 by default; freebody lifts it to +-1e6 "
+                          "(maxJointVelocity). maximal: no clamp",
+        "damping": "multibody: linear and angular damping 0.04 (linear + quadratic terms) by "
+                   "default; maximal: 0; freebody sets 0 on both",
+        "sleeping": "off by default (a body sleeps only with ACTIVATION_STATE_ENABLE_SLEEPING); "
+                    "freebody sets ACTIVATION_STATE_DISABLE_SLEEPING",
+        "gravity, time step": "defaults (0, 0, 0) and 1/240 s; freebody sets the case's",
+        "rotation cap": "both variants turn at most ~pi/4 per step: |w| dt > pi/4 rotates "
+                        "less than |w| dt (angular velocity read back unchanged); not fixable",
+        "integrator": "multibody: semi-implicit Euler, explicit gyroscopic term; maximal: "
+                      "gyroscopic term implicit (body frame), torque impulse h I^-1 tau added "
+                      "outside it",
+        "loads": "applyExternalForce / applyExternalTorque with WORLD_FRAME; last one step",
+        "instability signal": "none (the harness detects divergence from the state)",
+    }
+
+    @classmethod
+    def engine_version(cls) -> str:
+        try:
+            return importlib.metadata.version("pybullet")
+        except importlib.metadata.PackageNotFoundError:  # pragma: no cover - source builds
+            return f"API {pybullet.getAPIVersion()}"
+
+    # --- building -----------------------------------------------------------------------------
+    def build(self) -> None:
+        if self.integrator not in self.integrators:
+            raise ValueError(f"unknown pybullet integrator {self.integrator!r}; "
+                             f"offered: {', '.join(self.integrators)}")
+        if self.precision != "float64":
+            raise self.unsupported(f"precision {self.precision!r}")
+        self._maximal = self.integrator == "maximal"
+        self._cid = -1
+        cid = pybullet.connect(pybullet.DIRECT)
+        if cid < 0:
+            raise RuntimeError("pybullet.connect(DIRECT) failed")
+        self._cid = cid
+        try:
+            self._build(cid)
+        except BaseException:
+            self.close()
+            raise
+
+    def _build(self, cid: int) -> None:
+        pb = pybullet
+        problem, body, init = self.problem, self.problem.body, self.problem.initial
+        dt = self.dt
+
+        # World: time step and gravity.
+        params = pb.getPhysicsEngineParameters(physicsClientId=cid)
+        g_default = [params["gravityAccelerationX"], params["gravityAccelerationY"],
+                     params["gravityAccelerationZ"]]
+        dt_default = params["fixedTimeStep"]
+        g = np.array(problem.gravity, dtype=float)
+        pb.setTimeStep(dt, physicsClientId=cid)
+        pb.setGravity(*g, physicsClientId=cid)
+        params = pb.getPhysicsEngineParameters(physicsClientId=cid)
+        g_read = np.array([params["gravityAccelerationX"], params["gravityAccelerationY"],
+                           params["gravityAccelerationZ"]])
+        if params["fixedTimeStep"] != dt:
+            raise RuntimeError(f"pybullet time step read back {params['fixedTimeStep']!r}, set {dt!r}")
+        if not np.array_equal(g_read, g):
+            raise RuntimeError(f"pybullet gravity read back {g_read}, set {g}")
+        self.record_setting("fixedTimeStep", dt_default, dt)
+        self.record_setting("gravity", g_default, g)
+
+        # Inertia: I_body = V diag(d) V^T with V right-handed; q_V is the principal frame's
+        # orientation in the body (link) frame.
+        d, V = np.linalg.eigh(body.I_body)
+        if np.linalg.det(V) < 0:
+            V[:, 2] = -V[:, 2]
+        if not np.allclose(V @ np.diag(d) @ V.T, body.I_body, rtol=1e-12, atol=1e-14 * np.max(d)):
+            raise RuntimeError("eigen-decomposition of I_body failed")
+        q_V = quat_from_matrix(V)
+        self._q_V = q_V
+        self._q_V_inv = quat_conjugate(q_V)
+        self._diag = d
+
+        x0 = np.array(init.position, dtype=float)
+        q0 = quat_normalize(init.quaternion_wxyz)
+        v0 = np.array(init.linear_velocity, dtype=float)
+        w0 = np.array(init.angular_velocity, dtype=float)
+        M = float(body.mass)
+
+        b = pb.createMultiBody(
+            baseMass=M, baseCollisionShapeIndex=-1, baseVisualShapeIndex=-1,
+            basePosition=x0.tolist(), baseOrientation=quat_xyzw_from_wxyz(q0).tolist(),
+            baseInertialFramePosition=[0.0, 0.0, 0.0],
+            baseInertialFrameOrientation=quat_xyzw_from_wxyz(q_V).tolist(),
+            useMaximalCoordinates=self._maximal, physicsClientId=cid)
+        if b < 0:
+            raise RuntimeError("pybullet.createMultiBody failed")
+        self._body = b
+        inertia_default = list(pb.getDynamicsInfo(b, -1, physicsClientId=cid)[2])
+
+        # Mass and inertia (mass= is passed with localInertiaDiagonal: without it a maximal body
+        # freezes or turns NaN), damping, clamp, sleeping.
+        damping_default = DEFAULT_DAMPING[self.integrator]
+        kwargs = dict(mass=M, localInertiaDiagonal=d.tolist(), linearDamping=0.0,
+                      angularDamping=0.0, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING)
+        if not self._maximal:
+            kwargs["maxJointVelocity"] = MAX_COORDINATE_VELOCITY
+        pb.changeDynamics(b, -1, physicsClientId=cid, **kwargs)
+
+        info = pb.getDynamicsInfo(b, -1, physicsClientId=cid)
+        mass_read, inertia_read = info[0], np.array(info[2])
+        if abs(mass_read - M) > _READBACK_RTOL * M:
+            raise RuntimeError(f"pybullet mass read back {mass_read}, set {M}")
+        if not np.allclose(inertia_read, d, rtol=_READBACK_RTOL, atol=0.0):
+            raise RuntimeError(f"pybullet localInertiaDiagonal read back {inertia_read}, set {d}")
+        if not self._maximal:
+            # (getDynamicsInfo's inertial-frame fields are garbage for maximal bodies; the pose
+            # check below proves the inertial frame in both variants.)
+            pos_i, orn_i = np.array(info[3]), quat_wxyz_from_xyzw(info[4])
+            if np.any(pos_i != 0.0) or geodesic_angle(orn_i, q_V) > _READBACK_RTOL:
+                raise RuntimeError(f"pybullet inertial frame read back {pos_i}, {orn_i}; "
+                                   f"set (0, 0, 0), {q_V}")
+        # The pose read back right after creation is the inertial frame: q0 * q_V.
+        x_read, q_read = self._read_pose()
+        if (np.max(np.abs(x_read - x0)) > _INITIAL_STATE_TOL * (1.0 + np.max(np.abs(x0)))
+                or geodesic_angle(q_read, q0) > _INITIAL_STATE_TOL):
+            raise RuntimeError("pybullet did not take the inertial frame as expected: created at "
+                               f"{x0}, {q0}; read back (converted) {x_read}, {q_read}")
+        self.record_setting("localInertiaDiagonal", inertia_default, d)
+        self.record_setting("baseInertialFrameOrientation_xyzw", [0.0, 0.0, 0.0, 1.0],
+                            quat_xyzw_from_wxyz(q_V))
+        self.record_setting("linearDamping", damping_default, 0.0)
+        self.record_setting("angularDamping", damping_default, 0.0)
+        if not self._maximal:
+            self.record_setting("maxJointVelocity", DEFAULT_MAX_COORDINATE_VELOCITY,
+                                MAX_COORDINATE_VELOCITY)
+        self.record_setting("activationState", "sleeping not enabled (no getter)",
+                            "ACTIVATION_STATE_DISABLE_SLEEPING")
+
+        self._probe(x0, q0, g)
+
+        # Refresh step at rest at the initial pose: a maximal body's world inverse inertia is only
+        # recomputed by a step, and the first step's torque impulse would use a stale one.
+        self._write_pose(x0, q0)
+        pb.resetBaseVelocity(b, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=cid)
+        pb.stepSimulation(physicsClientId=cid)
+
+        # The initial state: pose first (resetBasePositionAndOrientation zeroes velocities).
+        self._write_pose(x0, q0)
+        pb.resetBaseVelocity(b, v0.tolist(), w0.tolist(), physicsClientId=cid)
+        x, q, v, w = self.read_state()
+        scale = 1.0 + max(np.max(np.abs(x0)), np.max(np.abs(v0)), np.max(np.abs(w0)))
+        err = max(np.max(np.abs(x - x0)), np.max(np.abs(v - v0)), np.max(np.abs(w - w0)))
+        if err > _INITIAL_STATE_TOL * scale or geodesic_angle(q, q0) > _INITIAL_STATE_TOL:
+            raise RuntimeError(f"pybullet initial state read back {x}, {q}, {v}, {w}; "
+                               f"set {x0}, {q0}, {v0}, {w0}")
+
+        self._setup_loads()
+
+    def _probe(self, x0: np.ndarray, q0: np.ndarray, g: np.ndarray) -> None:
+        """One step of a fast spin about a principal axis: proves damping 0 and no clamp.
+
+        Torque-free, a spin about a principal axis keeps its angular velocity and the linear
+        velocity gains exactly h g; damping 0.04 or the +-100 clamp would change either by far
+        more than _PROBE_RTOL.  The caller restores the state afterwards.
+        """
+        pb, cid, b, h = pybullet, self._cid, self._body, self.dt
+        R_principal = matrix_from_quat(q0) @ matrix_from_quat(self._q_V)  # principal -> world
+        w_p = _PROBE_SPEED * R_principal[:, 0]
+        v_p = _PROBE_SPEED * np.ones(3) / np.sqrt(3.0)
+        self._write_pose(x0, q0)
+        pb.resetBaseVelocity(b, v_p.tolist(), w_p.tolist(), physicsClientId=cid)
+        pb.stepSimulation(physicsClientId=cid)
+        v, w = (np.array(a) for a in pb.getBaseVelocity(b, physicsClientId=cid))
+        dv = np.max(np.abs(v - (v_p + h * g))) / _PROBE_SPEED
+        dw = np.max(np.abs(w - w_p)) / _PROBE_SPEED
+        if dv > _PROBE_RTOL or dw > _PROBE_RTOL:
+            raise RuntimeError(
+                "pybullet damping or velocity clamp did not take effect: one torque-free step of "
+                f"v = {v_p}, w = {w_p} (a principal axis) gave v = {v} (expected {v_p + h * g}), "
+                f"w = {w} (relative changes {dv:.3g}, {dw:.3g} > {_PROBE_RTOL})")
+
+    def _write_pose(self, x: np.ndarray, q_body_wxyz: np.ndarray) -> None:
+        """resetBasePositionAndOrientation of the inertial frame for a body pose (zeroes velocities)."""
+        q_inertial = quat_multiply(q_body_wxyz, self._q_V)
+        pybullet.resetBasePositionAndOrientation(self._body, x.tolist(),
+                                                 quat_xyzw_from_wxyz(q_inertial).tolist(),
+                                                 physicsClientId=self._cid)
+
+    def _read_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """(COM position (3,) m world, body quaternion (4,) wxyz body -> world)."""
+        pos, orn = pybullet.getBasePositionAndOrientation(self._body, physicsClientId=self._cid)
+        return np.array(pos), self._body_quat(orn)
+
+    def _body_quat(self, q_inertial_xyzw) -> np.ndarray:
+        """Body quaternion(s) (..., 4) wxyz from the inertial-frame quaternion(s) (..., 4) xyzw
+        that PyBullet reads back: q_body = q_inertial * q_V^-1 (the same arithmetic for one
+        sample and for a whole trajectory)."""
+        return quat_multiply(quat_wxyz_from_xyzw(q_inertial_xyzw), self._q_V_inv)
+
+    # --- loads ----------------------------------------------------------------------------------
+    def _setup_loads(self) -> None:
+        """Step indices where the active set of loads changes, for a cached lookup per interval."""
+        bounds = {0}
+        for ld in self.problem.loads:
+            for k in ld.step_range(self.dt):
+                if np.isfinite(k):
+                    bounds.add(int(k))
+        self._load_bounds = sorted(bounds)
+        self._load_cache: dict[int, tuple[Load, ...]] = {}
+
+    def _active_loads(self, k: int) -> tuple[Load, ...]:
+        i = bisect.bisect_right(self._load_bounds, k) - 1
+        loads = self._load_cache.get(i)
+        if loads is None:
+            loads = self.problem.active_loads(k, self.dt)
+            self._load_cache[i] = loads
+        return loads
+
+    def apply_loads(self, k: int) -> None:
+        """applyExternalForce (world point) and applyExternalTorque (world couple), WORLD_FRAME.
+
+        Torque arms use the state at the start of the step (read from the engine now).
+        """
+        if not self.problem.loads:
+            return
+        loads = self._active_loads(k)
+        if not loads:
+            return
+        pb, cid, b = pybullet, self._cid, self._body
+        x, q = self._read_pose()
+        R = matrix_from_quat(q)
+        tau = np.zeros(3)
+        for ld in loads:
+            if np.any(ld.force != 0.0):
+                if ld.point is not None:
+                    at = ld.point
+                elif ld.body_point is not None:
+                    at = x + R @ ld.body_point
+                else:
+                    at = x
+                pb.applyExternalForce(b, -1, ld.force.tolist(), at.tolist(), pb.WORLD_FRAME,
+                                      physicsClientId=cid)
+            tau += ld.torque + R @ ld.body_torque
+        if np.any(tau != 0.0):
+            pb.applyExternalTorque(b, -1, tau.tolist(), pb.WORLD_FRAME, physicsClientId=cid)
+
+    # --- stepping and reading -----------------------------------------------------------------
+    def step(self) -> None:
+        pybullet.stepSimulation(physicsClientId=self._cid)
+
+    def read_state(self):
+        """(COM position (3,) m world, quaternion (4,) wxyz body -> world, COM velocity (3,) m/s
+        world, angular velocity (3,) rad/s world)."""
+        pb, cid, b = pybullet, self._cid, self._body
+        pos, orn = pb.getBasePositionAndOrientation(b, physicsClientId=cid)
+        v, w = pb.getBaseVelocity(b, physicsClientId=cid)
+        return np.array(pos), self._body_quat(orn), np.array(v), np.array(w)
+
+    def simulate(self, steps: int) -> Trajectory:
+        """As Adapter.simulate, with the engine's tuples collected in lists and converted once.
+
+        PyBullet reports no instability of its own, so nothing raises EngineDiverged here.
+        """
+        pb, cid, b = pybullet, self._cid, self._body
+        step, get_pose, get_vel = pb.stepSimulation, pb.getBasePositionAndOrientation, pb.getBaseVelocity
+        apply = self.apply_loads if self.problem.loads else None
+        P, Q, V, W = [], [], [], []
+        pos, orn = get_pose(b, physicsClientId=cid)
+        v, w = get_vel(b, physicsClientId=cid)
+        P.append(pos), Q.append(orn), V.append(v), W.append(w)
+        k0 = self.k
+        for k in range(k0, k0 + steps):
+            if apply is not None:
+                apply(k)
+            step(physicsClientId=cid)
+            pos, orn = get_pose(b, physicsClientId=cid)
+            v, w = get_vel(b, physicsClientId=cid)
+            P.append(pos), Q.append(orn), V.append(v), W.append(w)
+        self.k = k0 + steps
+        return Trajectory(t=(k0 + np.arange(steps + 1)) * self.dt, position=np.array(P),
+                          quaternion_wxyz=self._body_quat(np.array(Q)), linear_velocity=np.array(V),
+                          angular_velocity=np.array(W))
+
+    def close(self) -> None:
+        cid = getattr(self, "_cid", -1)
+        if cid >= 0:
+            self._cid = -1
+            try:
+                pybullet.disconnect(physicsClientId=cid)
+            except pybullet.error:  # already disconnected
+                pass
+
+    def __del__(self):
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: the module may already be gone
+            pass
