@@ -1,0 +1,372 @@
+"""MuJoCo as a freebody engine: one body with a free joint, nothing else in the world.
+
+MuJoCo's conventions and what this adapter converts:
+
+- Free-joint ``qpos`` (7,) = [body origin (3,) m world, quaternion (4,) Hamilton (w, x, y, z)
+  body -> world].  The body frame is the case's body frame and its origin is the COM: the
+  ``<inertial>`` sits at ``pos="0 0 0"`` and the compiler is told not to move the body frame onto
+  the principal axes (``alignfree="false"``; build() checks that the compiled body frame is the
+  XML one).  Quaternion order is already freebody's: no reordering.
+- Free-joint ``qvel`` (6,) = [linear velocity (3,) m/s world, angular velocity (3,) rad/s BODY
+  frame].  The adapter writes ``w_body = R^T w_world`` and reads ``w_world = R w_body`` with
+  ``angular_velocity_body_from_world`` / ``angular_velocity_world_from_body``.
+- Inertia: ``<inertial fullinertia="Ixx Iyy Izz Ixy Ixz Iyz">``, the full tensor about the COM in
+  the body frame; the compiler diagonalises it into ``body_inertia`` (principal moments) and
+  ``body_iquat`` (principal frame in the body frame).
+- Loads: ``data.xfrc_applied[body]`` (6,) = [force (3,) N world, torque (3,) N m world about the
+  COM].  It persists until overwritten, so apply_loads(k) writes it before every step: the
+  case's wrench for the step's active loads (arms from the state at the start of the step), or
+  zeros.  simulate() rewrites it only where it can change (a new set of loads, or loads whose
+  wrench depends on the state) and clears it at the end.
+- ``xpos``/``xquat`` are one step stale after ``mj_step``: the state is read from ``qpos``/``qvel``.
+- Instability: MuJoCo counts "Nan, Inf or huge value" warnings in ``data.warning`` and by default
+  resets the body to ``qpos0`` at rest and carries on.  The adapter disables that auto-reset (so the
+  last sample shows the blown-up state) and reports any increase of the watched warning counters.
+
+Engine defaults this adapter changes (each recorded in ``settings`` and read back): ``timestep``
+(0.002 -> dt), ``gravity`` ((0, 0, -9.81) -> the case's), ``integrator`` (Euler -> the chosen one),
+the auto-reset on bad values (enabled -> disabled), and the compiler's ``alignfree`` (kept false,
+recorded).  The model has no geoms, so there are no contacts to disable; damping, armature,
+sleeping and fluid forces are zero/off by default and build() checks that they are.
+"""
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass
+from typing import ClassVar
+
+import mujoco
+import numpy as np
+
+from ..reference_impl.conventions import (Trajectory, angular_velocity_body_from_world,
+                                          angular_velocity_world_from_body)
+from ..reference_impl.problem import Problem
+from ..reference_impl.rotations import matrix_from_quat, quat_from_matrix
+from .base import Adapter, EngineDiverged
+
+# freebody's integrator name (MuJoCo's own spelling) -> the mjtIntegrator member, default first.
+_INTEGRATOR_ENUM: dict[str, str] = {
+    "Euler": "mjINT_EULER",
+    "RK4": "mjINT_RK4",
+    "implicit": "mjINT_IMPLICIT",
+    "implicitfast": "mjINT_IMPLICITFAST",
+    "discrete": "mjINT_DISCRETE",
+}
+
+# MuJoCo's instability warnings (data.warning counters) that end a run.
+_WATCHED_WARNINGS: tuple[str, ...] = ("mjWARN_BADQACC", "mjWARN_BADQVEL", "mjWARN_BADQPOS",
+                                      "mjWARN_INERTIA")
+
+# A flat body (A + B = C exactly, e.g. diag(1, 2, 3)) with off-diagonal terms fails MuJoCo's
+# "A + B >= C" check about a third of the time through round-off in the diagonalisation; such a
+# violation up to this fraction of C is treated as round-off (see _inertial_element).
+_TRIANGLE_ROUNDOFF = 1e-12
+
+_BODY = 1  # body id of the free body (0 is the world)
+
+
+def _fmt(a) -> str:
+    """Floats as shortest round-trip decimal strings for the XML (exact after parsing)."""
+    return " ".join(repr(float(x)) for x in np.ravel(a))
+
+
+class MujocoAdapter(Adapter):
+    name: ClassVar[str] = "mujoco"
+    import_name: ClassVar[str] = "mujoco"
+    install_hint: ClassVar[str] = "pip install mujoco"
+    integrators: ClassVar[tuple[str, ...]] = tuple(_INTEGRATOR_ENUM)
+    precisions: ClassVar[tuple[str, ...]] = ("float64",)
+    conventions: ClassVar[dict[str, str]] = {
+        "quaternion order": "(w, x, y, z), Hamilton, body -> world (free-joint qpos[3:7]); no reorder",
+        "position": "qpos[0:3]: body origin in world = COM (inertial pos 0 0 0, alignfree=false)",
+        "angular velocity frame": "BODY frame in qvel[3:6]; converted w_world = R w_body",
+        "linear velocity frame": "world (qvel[0:3])",
+        "inertia input": "full tensor via <inertial fullinertia='Ixx Iyy Izz Ixy Ixz Iyz'>, "
+                         "diagonalised by the compiler (body_inertia + body_iquat)",
+        "external loads": "xfrc_applied = (force, torque about the COM), world; persists until "
+                          "cleared: written before every step",
+        "velocity clamp": "none",
+        "damping": "none by default (dof_damping 0, armature 0)",
+        "sleeping": "off by default (mjENBL_SLEEP not set)",
+        "instability": "counts mjWARN_BADQACC/BADQVEL/BADQPOS in data.warning and by default "
+                       "silently resets to qpos0 at rest",
+        "freebody sets": "timestep = dt, gravity = case, integrator, auto-reset disabled, "
+                         "alignfree = false; no geoms (no contacts)",
+    }
+
+    # --- capabilities --------------------------------------------------------------------------
+    @classmethod
+    def engine_version(cls) -> str:
+        return mujoco.__version__
+
+    @classmethod
+    def offered_integrators(cls) -> tuple[str, ...]:
+        return tuple(n for n, e in _INTEGRATOR_ENUM.items() if hasattr(mujoco.mjtIntegrator, e))
+
+    # --- world ---------------------------------------------------------------------------------
+    def build(self) -> None:
+        if self.integrator not in self.offered_integrators():
+            raise ValueError(f"mujoco {mujoco.__version__} has no integrator {self.integrator!r}; "
+                             f"offered: {', '.join(self.offered_integrators())}")
+        if self.precision != "float64":
+            raise ValueError(f"mujoco computes in float64 only, not {self.precision!r}")
+        problem = self.problem
+        defaults = mujoco.MjModel.from_xml_string("<mujoco/>").opt
+
+        align = _alignfree_default()
+        compiler = '<compiler alignfree="false"/>' if align is not None else ""
+        xml = (f'<mujoco model="freebody">{compiler}<worldbody>'
+               f'<body name="body" pos="0 0 0" quat="1 0 0 0"><freejoint name="free"/>'
+               f'{_inertial_element(problem.body.mass, problem.body.I_body)}'
+               f'</body></worldbody></mujoco>')
+        m = mujoco.MjModel.from_xml_string(xml)
+        if align is not None:
+            self.record_setting("compiler.alignfree", align, False)
+        if not (np.array_equal(m.body_pos[_BODY], np.zeros(3))
+                and np.array_equal(m.body_quat[_BODY], [1.0, 0.0, 0.0, 0.0])
+                and np.array_equal(m.body_ipos[_BODY], np.zeros(3))):
+            raise RuntimeError("mujoco moved the body frame (free-joint alignment?): "
+                               f"body_pos {m.body_pos[_BODY]}, body_quat {m.body_quat[_BODY]}, "
+                               f"body_ipos {m.body_ipos[_BODY]}; qpos would not be the body frame")
+        for field in ("dof_damping", "dof_armature", "dof_frictionloss"):
+            if np.any(getattr(m, field)):
+                raise RuntimeError(f"mujoco model has non-zero {field}: {getattr(m, field)}")
+        if m.opt.enableflags & int(getattr(mujoco.mjtEnableBit, "mjENBL_SLEEP", 0)):
+            raise RuntimeError("mujoco sleeping is enabled by default in this version")
+        if m.opt.density != 0.0 or m.opt.viscosity != 0.0:
+            raise RuntimeError("mujoco fluid forces are on by default in this version")
+
+        m.opt.timestep = self.dt
+        _check("timestep", m.opt.timestep, self.dt)
+        self.record_setting("timestep", defaults.timestep, float(m.opt.timestep))
+        m.opt.gravity[:] = problem.gravity
+        _check("gravity", m.opt.gravity, problem.gravity)
+        self.record_setting("gravity", defaults.gravity.copy(), m.opt.gravity.copy())
+        enum = getattr(mujoco.mjtIntegrator, _INTEGRATOR_ENUM[self.integrator])
+        m.opt.integrator = int(enum)
+        _check("integrator", m.opt.integrator, int(enum))
+        self.record_setting("integrator", _integrator_name(defaults.integrator),
+                            _integrator_name(m.opt.integrator))
+        autoreset = getattr(mujoco.mjtDisableBit, "mjDSBL_AUTORESET", None)
+        if autoreset is not None:
+            before = not (m.opt.disableflags & int(autoreset))
+            m.opt.disableflags |= int(autoreset)
+            _check("auto-reset disabled", bool(m.opt.disableflags & int(autoreset)), True)
+            self.record_setting("autoreset", before, False)
+
+        d = mujoco.MjData(m)
+        init = problem.initial
+        d.qpos[0:3] = init.position
+        d.qpos[3:7] = init.quaternion_wxyz
+        d.qvel[0:3] = init.linear_velocity
+        d.qvel[3:6] = angular_velocity_body_from_world(init.quaternion_wxyz, init.angular_velocity)
+        mujoco.mj_forward(m, d)
+        self.model, self.data = m, d
+
+        self._warnings = [d.warning[int(getattr(mujoco.mjtWarning, w))] for w in _WATCHED_WARNINGS]
+        self._warning_counts = [w.number for w in self._warnings]
+        self._xfrc = d.xfrc_applied[_BODY]  # (6,) view: force (3,) N world, torque (3,) N m world
+        self._torque = self._xfrc[3:6]      # (3,) view: torque about the COM, N m, world
+        self._x = d.qpos[0:3]               # (3,) view: COM position, m, world
+        self._q = d.qpos[3:7]               # (4,) view: quaternion wxyz, body -> world
+        self._arm = np.empty(3)             # scratch (3,)
+        self._term = np.empty(3)            # scratch (3,)
+        # The case's load schedule: _Segment's covering k >= 0, ascending.
+        self._segments = _segments(problem, self.dt)
+        self._starts = [seg.k0 for seg in self._segments]
+
+    # --- loads -----------------------------------------------------------------------------------
+    def _write_wrench(self, seg: "_Segment") -> None:
+        """xfrc_applied[body] = the segment's loads' world (force, torque about the COM) at the
+        current state (zeros when none is active): the sum over loads of Load.wrench, with the
+        state-dependent arms computed by MuJoCo's 3-vector helpers (numpy's cross on a (3,) array
+        costs ~10 us)."""
+        self._xfrc[:] = seg.constant
+        if not seg.state_dependent:
+            return
+        tau, arm, term, x, q = self._torque, self._arm, self._term, self._x, self._q
+        for point, f in seg.point_forces:          # (p - x) x f
+            mujoco.mju_sub3(arm, point, x)
+            mujoco.mju_cross(term, arm, f)
+            mujoco.mju_addTo3(tau, term)
+        for body_point, f in seg.body_point_forces:  # (R r_b) x f
+            mujoco.mju_rotVecQuat(arm, body_point, q)
+            mujoco.mju_cross(term, arm, f)
+            mujoco.mju_addTo3(tau, term)
+        if seg.body_torque is not None:             # R tau_b
+            mujoco.mju_rotVecQuat(term, seg.body_torque, q)
+            mujoco.mju_addTo3(tau, term)
+
+    def apply_loads(self, k: int) -> None:
+        self._write_wrench(self._segments[bisect.bisect_right(self._starts, k) - 1])
+
+    # --- stepping --------------------------------------------------------------------------------
+    def step(self) -> None:
+        mujoco.mj_step(self.model, self.data)
+
+    def read_state(self):
+        qpos, qvel = self.data.qpos, self.data.qvel
+        q = qpos[3:7].copy()
+        return (qpos[0:3].copy(), q, qvel[0:3].copy(), angular_velocity_world_from_body(q, qvel[3:6]))
+
+    def instability(self) -> str | None:
+        msg = None
+        for i, w in enumerate(self._warnings):
+            n = w.number
+            if n != self._warning_counts[i]:
+                self._warning_counts[i] = n
+                if msg is None:
+                    enum = getattr(mujoco.mjtWarning, _WATCHED_WARNINGS[i])
+                    msg = (f"mujoco {_WATCHED_WARNINGS[i]}: "
+                           f"{mujoco.mju_warningText(enum, w.lastinfo).strip()}")
+        return msg
+
+    def simulate(self, steps: int) -> Trajectory:
+        """The base loop with minimal per-step work: loads rewritten only when they change or
+        depend on the state, raw qpos/qvel copied into preallocated (steps + 1, 7) and
+        (steps + 1, 6) arrays, the frame conversion done once for the whole run."""
+        m, d = self.model, self.data
+        step = mujoco.mj_step
+        qpos, qvel = d.qpos, d.qvel
+        Q = np.empty((steps + 1, 7))   # [x (3) m world, q (4) wxyz body -> world]
+        V = np.empty((steps + 1, 6))   # [v (3) m/s world, w (3) rad/s BODY]
+        Q[0], V[0] = qpos, qvel
+        acc, wvel, wpos, winert = self._warnings
+        n_acc, n_vel, n_pos, n_inert = self._warning_counts
+        k = 0
+        try:
+            for seg in self._segments:
+                k1 = min(seg.k1, steps)
+                if seg.k0 >= k1:
+                    continue
+                dependent = seg.state_dependent
+                self._write_wrench(seg)
+                for k in range(seg.k0, k1):
+                    if dependent and k > seg.k0:
+                        self._write_wrench(seg)
+                    step(m, d)
+                    Q[k + 1] = qpos
+                    V[k + 1] = qvel
+                    if (acc.number != n_acc or wvel.number != n_vel or wpos.number != n_pos
+                            or winert.number != n_inert):
+                        self.k = k + 1
+                        raise _Unstable(self.instability())
+            self.k = steps
+            self._xfrc[:] = 0.0
+        except _Unstable as e:
+            raise EngineDiverged((k + 1) * self.dt, str(e), _trajectory(Q[:k + 2], V[:k + 2], self.dt))
+        return _trajectory(Q, V, self.dt)
+
+    def close(self) -> None:
+        self.model = self.data = None
+
+
+class _Unstable(Exception):
+    pass
+
+
+def _trajectory(Q: np.ndarray, V: np.ndarray, dt: float) -> Trajectory:
+    """Canonical Trajectory from raw free-joint qpos rows (N, 7) and qvel rows (N, 6)."""
+    q = Q[:, 3:7].copy()
+    return Trajectory(t=np.arange(len(Q)) * dt, position=Q[:, 0:3].copy(), quaternion_wxyz=q,
+                      linear_velocity=V[:, 0:3].copy(),
+                      angular_velocity=angular_velocity_world_from_body(q, V[:, 3:6]))
+
+
+@dataclass(frozen=True)
+class _Segment:
+    """Steps k0 <= k < k1 (k1 may be inf) with one set of active loads, pre-summed.
+
+    constant : (6,) [sum of forces (3,) N world, sum of world couples (3,) N m world].
+    point_forces : ((point (3,) m world, force (3,) N world), ...) of world-point loads.
+    body_point_forces : ((body_point (3,) m body, force (3,) N world), ...).
+    body_torque : (3,) N m body frame, the sum of body-frame couples, or None.
+    """
+
+    k0: int
+    k1: float
+    constant: np.ndarray
+    point_forces: tuple[tuple[np.ndarray, np.ndarray], ...]
+    body_point_forces: tuple[tuple[np.ndarray, np.ndarray], ...]
+    body_torque: np.ndarray | None
+
+    @property
+    def state_dependent(self) -> bool:
+        return bool(self.point_forces or self.body_point_forces or self.body_torque is not None)
+
+
+def _segments(problem: Problem, dt: float) -> list[_Segment]:
+    """The case's loads as step intervals with a constant active set, covering k >= 0."""
+    edges = sorted({0} | {int(k) for ld in problem.loads for k in ld.step_range(dt)
+                          if np.isfinite(k) and k > 0})
+    out = []
+    for i, k0 in enumerate(edges):
+        k1 = edges[i + 1] if i + 1 < len(edges) else np.inf
+        loads = problem.active_loads(k0, dt)
+        constant = np.zeros(6)
+        body_torque = np.zeros(3)
+        for ld in loads:
+            constant[0:3] += ld.force
+            constant[3:6] += ld.torque
+            body_torque += ld.body_torque
+        point = tuple((np.array(ld.point), np.array(ld.force)) for ld in loads
+                      if ld.point is not None)
+        body_point = tuple((np.array(ld.body_point), np.array(ld.force)) for ld in loads
+                           if ld.point is None and ld.body_point is not None)
+        out.append(_Segment(k0, k1, constant, point, body_point,
+                            body_torque if np.any(body_torque) else None))
+    return out
+
+
+def _inertial_element(mass: float, I_body: np.ndarray) -> str:
+    """``<inertial>`` at the body origin with the full tensor (``fullinertia``).
+
+    When MuJoCo's "A + B >= C" check would fail only by round-off (a flat body given with
+    off-diagonal terms), the principal moments and axes are computed here instead (numpy eigh),
+    C is set to A + B, and they are passed as ``diaginertia`` + ``quat``: a change of at most
+    _TRIANGLE_ROUNDOFF * C.  A real violation is left for MuJoCo to reject.
+    """
+    I = np.asarray(I_body, dtype=float)
+    full = (f'<inertial pos="0 0 0" mass="{_fmt(mass)}" fullinertia="'
+            f'{_fmt([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])}"/>')
+    try:
+        mujoco.MjModel.from_xml_string(f"<mujoco><worldbody><body><freejoint/>{full}"
+                                       f"</body></worldbody></mujoco>")
+        return full
+    except ValueError as e:
+        if "A + B >= C" not in str(e):
+            raise
+    evals, evecs = np.linalg.eigh(0.5 * (I + I.T))
+    if evals[0] + evals[1] < evals[2] * (1.0 - _TRIANGLE_ROUNDOFF):
+        return full  # a real violation: MuJoCo's error is the right message
+    evals[2] = evals[0] + evals[1]
+    if np.linalg.det(evecs) < 0:
+        evecs[:, 2] *= -1.0
+    quat = quat_from_matrix(evecs)
+    _check_rotation(evecs, matrix_from_quat(quat))
+    return (f'<inertial pos="0 0 0" mass="{_fmt(mass)}" quat="{_fmt(quat)}" '
+            f'diaginertia="{_fmt(evals)}"/>')
+
+
+def _check_rotation(a: np.ndarray, b: np.ndarray) -> None:
+    if not np.allclose(a, b, atol=1e-12):
+        raise RuntimeError("principal axes of the inertia could not be converted to a quaternion")
+
+
+def _alignfree_default():
+    """The compiler's alignfree default, or None when this MuJoCo has no such option."""
+    spec = getattr(mujoco, "MjSpec", None)
+    if spec is None or not hasattr(spec().compiler, "alignfree"):
+        return None
+    return bool(spec().compiler.alignfree)
+
+
+def _integrator_name(value: int) -> str:
+    """MuJoCo's spelling ("Euler", "RK4", ...) of an mjtIntegrator value."""
+    enum = mujoco.mjtIntegrator(value).name
+    return next((n for n, e in _INTEGRATOR_ENUM.items() if e == enum), enum)
+
+
+def _check(what: str, got, want) -> None:
+    if not np.array_equal(np.asarray(got), np.asarray(want)):
+        raise RuntimeError(f"mujoco did not take the setting {what}: set {want!r}, read back {got!r}")

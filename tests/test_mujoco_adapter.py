@@ -1,0 +1,258 @@
+"""The MuJoCo adapter against the reference maps, on the real engine (skipped if not installed).
+
+Arrays follow freebody's canonical convention (reference_impl/conventions.py): quaternions
+(w, x, y, z) body -> world, COM position/velocity in world (m, m/s), angular velocity in world
+(rad/s), inertia (3, 3) about the COM in the body frame (kg m^2).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco", reason="mujoco not installed (pip install 'freebody[engines]')")
+
+from freebody.adapters.base import Adapter, EngineDiverged  # noqa: E402
+from freebody.adapters.mujoco_adapter import MujocoAdapter  # noqa: E402
+from freebody.reference_impl.conventions import angular_momentum  # noqa: E402
+from freebody.reference_impl.integrators import simulate  # noqa: E402
+from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
+from freebody.reference_impl.rotations import (geodesic_angle, matrix_from_quat,  # noqa: E402
+                                               quat_from_rotvec, quat_multiply, quat_normalize)
+
+# t = 0 read-back: only the body -> world conversion of w (one 3x3 product each way) rounds.
+READBACK_TOL = 1e-12
+# Euler vs semi-implicit-explicit-gyro, Dzhanibekov case, dt 0.01, 10 s (1000 steps, through the
+# flip, which amplifies round-off): measured 3e-10 rad (mujoco 4.0.0); 30x margin.
+SAME_MAP_ANGLE_TOL = 1e-8
+# angular velocity, same runs: measured 4.5e-10 rad/s at |w| ~ 5 rad/s.
+SAME_MAP_OMEGA_TOL = 1e-8
+# Same map, short run (dt 0.01, <= 40 steps, no flip): round-off only, measured 3e-15.
+SHORT_RUN_TOL = 1e-11
+# MuJoCo RK4 vs reference rk4 (both 4th order, different variables), Dzhanibekov case, dt 0.005,
+# 2 s: they differ by their truncation errors, measured 6e-9 rad (ref 5.9e-9, MuJoCo 6e-10 from
+# a fine solution).
+RK4_TOL = 5e-8
+# 150 rad/s about a principal axis, dt 1e-3, 200 steps: the exact map rotates by 150 t; round-off
+# of 200 quaternion products, measured ~1e-13 rad.
+SPIN_ANGLE_TOL = 1e-10
+
+DZHANIBEKOV_I = np.diag([1.0, 2.0, 3.0])
+DZHANIBEKOV_W0 = np.array([0.01, 5.0, 0.0])
+
+
+def _problem(I, w, q=(1.0, 0.0, 0.0, 0.0), x=(0.0, 0.0, 0.0), v=(0.0, 0.0, 0.0),
+             gravity=(0.0, 0.0, 0.0), loads=(), mass=1.0, duration=1.0) -> Problem:
+    return Problem("test", "", Body(mass, I), InitialState(x, quat_normalize(q), v, w),
+                   gravity, tuple(loads), duration=duration)
+
+
+def _rotated_inertia(seed: int) -> np.ndarray:
+    """A non-diagonal, non-flat SPD inertia (principal moments 2, 3, 4) in a random body frame."""
+    rng = np.random.default_rng(seed)
+    R = matrix_from_quat(quat_normalize(rng.normal(size=4)))
+    return R @ np.diag([2.0, 3.0, 4.0]) @ R.T
+
+
+def _general_problem(loads=(), gravity=(0.0, 0.0, -9.81)) -> Problem:
+    """Non-identity orientation, offset position, non-zero v and w, non-diagonal inertia."""
+    return _problem(_rotated_inertia(11), w=[0.7, -1.3, 2.1], q=[0.8, 0.3, -0.4, 0.35],
+                    x=[1.5, -2.0, 0.7], v=[0.3, -0.2, 1.1], gravity=gravity, loads=loads, mass=2.5)
+
+
+def _dzhanibekov(rotated_body_frame: bool) -> Problem:
+    """I = diag(1, 2, 3), w0 = (0.01, 5, 0) (world); optionally the same physics in a rotated body
+    frame (full non-diagonal tensor, rotated initial orientation)."""
+    if not rotated_body_frame:
+        return _problem(DZHANIBEKOV_I, DZHANIBEKOV_W0, duration=10.0)
+    Rb = matrix_from_quat(quat_normalize([0.9, -0.2, 0.3, 0.25]))  # body' -> body
+    q_bb = quat_normalize([0.9, -0.2, 0.3, 0.25])
+    return _problem(Rb.T @ DZHANIBEKOV_I @ Rb, DZHANIBEKOV_W0, q=q_bb, duration=10.0)
+
+
+def _max_angle(a, b) -> float:
+    return float(np.max(geodesic_angle(a.quaternion_wxyz, b.quaternion_wxyz)))
+
+
+def test_readback_at_t0_equals_initial_state():
+    pb = _general_problem()
+    x, q, v, w = MujocoAdapter(pb, 0.01, "Euler").read_state()
+    init = pb.initial
+    assert np.max(np.abs(x - init.position)) <= READBACK_TOL
+    assert np.max(np.abs(q - init.quaternion_wxyz)) <= READBACK_TOL
+    assert np.max(np.abs(v - init.linear_velocity)) <= READBACK_TOL
+    assert np.max(np.abs(w - init.angular_velocity)) <= READBACK_TOL
+    tr = MujocoAdapter(pb, 0.01, "Euler").simulate(1)
+    assert np.max(np.abs(tr.angular_velocity[0] - init.angular_velocity)) <= READBACK_TOL
+
+
+def test_body_frame_is_not_aligned_to_principal_axes():
+    """qpos is the case's body frame: the compiler kept the rotated principal frame in body_iquat."""
+    a = MujocoAdapter(_general_problem(), 0.01, "Euler")
+    m = a.model
+    assert np.array_equal(m.body_quat[1], [1.0, 0.0, 0.0, 0.0])
+    assert np.array_equal(m.body_pos[1], np.zeros(3))
+    assert geodesic_angle(m.body_iquat[1], [1.0, 0.0, 0.0, 0.0]) > 0.1
+    I_back = (matrix_from_quat(m.body_iquat[1]) @ np.diag(m.body_inertia[1])
+              @ matrix_from_quat(m.body_iquat[1]).T)
+    assert np.max(np.abs(I_back - a.problem.body.I_body)) <= 1e-12
+
+
+@pytest.mark.parametrize("rotated", [False, True], ids=["diag", "full-tensor"])
+def test_euler_is_semi_implicit_explicit_gyro(rotated):
+    pb = _dzhanibekov(rotated)
+    steps = pb.steps(0.01)
+    tr = MujocoAdapter(pb, 0.01, "Euler").simulate(steps)
+    ref = simulate(pb, "semi-implicit-explicit-gyro", 0.01, steps)
+    assert _max_angle(tr, ref) <= SAME_MAP_ANGLE_TOL
+    assert np.max(np.abs(tr.angular_velocity - ref.angular_velocity)) <= SAME_MAP_OMEGA_TOL
+    # the case does flip, and the other map is far away (the comparison can fail)
+    other = simulate(pb, "semi-implicit-implicit-gyro", 0.01, steps)
+    assert _max_angle(tr, other) > 0.1
+
+
+@pytest.mark.parametrize("integrator", ["implicit", "implicitfast", "discrete"])
+def test_implicit_family_is_semi_implicit_implicit_gyro(integrator):
+    if integrator not in MujocoAdapter.offered_integrators():
+        pytest.skip(f"mujoco {mujoco.__version__} has no {integrator} integrator")
+    pb = _dzhanibekov(False)
+    steps = pb.steps(0.01)
+    tr = MujocoAdapter(pb, 0.01, integrator).simulate(steps)
+    ref = simulate(pb, "semi-implicit-implicit-gyro", 0.01, steps)
+    assert _max_angle(tr, ref) <= SAME_MAP_ANGLE_TOL
+    assert np.max(np.abs(tr.angular_velocity - ref.angular_velocity)) <= SAME_MAP_OMEGA_TOL
+
+
+def test_rk4_is_fourth_order_close_to_reference_rk4():
+    pb = _dzhanibekov(False)
+    steps = pb.steps(0.005, duration=2.0)
+    tr = MujocoAdapter(pb, 0.005, "RK4").simulate(steps)
+    ref = simulate(pb, "rk4", 0.005, steps)
+    assert _max_angle(tr, ref) <= RK4_TOL
+    # not the first-order map
+    euler = simulate(pb, "semi-implicit-explicit-gyro", 0.005, steps)
+    assert _max_angle(tr, euler) > 100 * RK4_TOL
+
+
+def test_flat_body_with_off_diagonal_inertia_builds():
+    """diag(1, 2, 3) (A + B = C) in random body frames: MuJoCo's own A + B >= C check rejects about
+    a third of them by round-off; the adapter must still build them, with the right dynamics."""
+    rng = np.random.default_rng(5)
+    for _ in range(12):
+        R = matrix_from_quat(quat_normalize(rng.normal(size=4)))
+        pb = _problem(R @ DZHANIBEKOV_I @ R.T, rng.normal(size=3), q=rng.normal(size=4))
+        tr = MujocoAdapter(pb, 0.01, "Euler").simulate(20)
+        ref = simulate(pb, "semi-implicit-explicit-gyro", 0.01, 20)
+        assert _max_angle(tr, ref) <= SHORT_RUN_TOL
+        assert np.max(np.abs(tr.angular_velocity - ref.angular_velocity)) <= SHORT_RUN_TOL
+
+
+def _push_loads():
+    return (Load(force=np.array([3.0, -1.0, 2.0]), body_point=np.array([0.4, -0.2, 0.3]), steps=1),)
+
+
+def test_body_point_push_torque_and_clear():
+    """A one-step push at a body point on a rotated moving body: torque (R r_b) x f, then no load."""
+    dt, steps = 0.01, 40
+    pb = _general_problem(loads=_push_loads())
+    a = MujocoAdapter(pb, dt, "Euler")
+    tr = a.simulate(steps)
+    ref = simulate(pb, "semi-implicit-explicit-gyro", dt, steps)
+    assert _max_angle(tr, ref) <= SHORT_RUN_TOL
+    for field in ("position", "linear_velocity", "angular_velocity"):
+        assert np.max(np.abs(getattr(tr, field) - getattr(ref, field))) <= SHORT_RUN_TOL, field
+    # the angular momentum change of the pushed step matches the reference map's
+    I = pb.body.I_body
+    dL = np.diff(angular_momentum(I, tr.quaternion_wxyz[:2], tr.angular_velocity[:2]), axis=0)[0]
+    dL_ref = np.diff(angular_momentum(I, ref.quaternion_wxyz[:2], ref.angular_velocity[:2]), axis=0)[0]
+    assert np.max(np.abs(dL - dL_ref)) <= SHORT_RUN_TOL
+    # ... and differs from an unrotated arm r_b x f by more than round-off (the test can fail)
+    ld = pb.loads[0]
+    tau_right = np.cross(pb.R0 @ ld.body_point, ld.force)
+    tau_wrong = np.cross(ld.body_point, ld.force)
+    assert np.linalg.norm(dt * (tau_right - tau_wrong)) > 1e3 * SHORT_RUN_TOL
+    # xfrc_applied is zero after the run (and the later steps follow the unloaded map, above)
+    assert not np.any(a.data.xfrc_applied)
+
+
+def test_step_by_step_loop_clears_xfrc_and_matches_fast_simulate():
+    """The base loop (apply_loads/step/read_state/instability) gives the fast simulate()'s result,
+    with world-point, body-point, world- and body-torque loads switching on and off."""
+    loads = _push_loads() + (
+        Load(force=np.array([0.0, 2.0, -1.0]), point=np.array([0.5, 0.5, 0.5]), start=0.05, steps=3),
+        Load(torque=np.array([0.2, 0.0, -0.1]), start=0.02, end=0.12),
+        Load(body_torque=np.array([0.0, 0.3, 0.1]), start=0.1),
+    )
+    dt, steps = 0.01, 20
+    pb = _general_problem(loads=loads)
+    fast = MujocoAdapter(pb, dt, "Euler").simulate(steps)
+    a = MujocoAdapter(pb, dt, "Euler")
+    a.apply_loads(0)
+    assert np.any(a.data.xfrc_applied[1])
+    a.step()
+    a.apply_loads(1)  # the push lasted one step; nothing else is on at k = 1
+    assert not np.any(a.data.xfrc_applied)
+    slow = Adapter.simulate(MujocoAdapter(pb, dt, "Euler"), steps)
+    for field in ("position", "quaternion_wxyz", "linear_velocity", "angular_velocity"):
+        assert np.array_equal(getattr(fast, field), getattr(slow, field)), field
+    ref = simulate(pb, "semi-implicit-explicit-gyro", dt, steps)
+    assert _max_angle(fast, ref) <= SHORT_RUN_TOL
+    assert np.max(np.abs(fast.angular_velocity - ref.angular_velocity)) <= SHORT_RUN_TOL
+    assert np.max(np.abs(fast.position - ref.position)) <= SHORT_RUN_TOL
+
+
+def test_fast_spin_is_not_clamped():
+    """150 rad/s about a body axis at dt = 1e-3: orientation follows the exact rotation angle."""
+    q0 = quat_normalize([0.6, -0.3, 0.5, 0.4])
+    axis_body = np.array([1.0, 0.0, 0.0])
+    w_world = 150.0 * matrix_from_quat(q0) @ axis_body
+    pb = _problem(DZHANIBEKOV_I, w_world, q=q0, duration=0.2)
+    dt, steps = 1e-3, 200
+    tr = MujocoAdapter(pb, dt, "Euler").simulate(steps)
+    t = tr.t
+    exact = quat_multiply(q0, quat_from_rotvec(np.outer(150.0 * t, axis_body)))
+    assert np.max(geodesic_angle(tr.quaternion_wxyz, exact)) <= SPIN_ANGLE_TOL
+    assert np.max(np.abs(np.linalg.norm(tr.angular_velocity, axis=1) - 150.0)) <= 1e-9
+
+
+def test_blow_up_raises_engine_diverged(tmp_path, monkeypatch):
+    """I = diag(1,2,3), w0 = (0.1, 50, 0), dt 0.01, Euler: MuJoCo's BADQACC warning ends the run
+    (otherwise MuJoCo would reset the body to rest and carry on)."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo appends its warning to ./MUJOCO_LOG.TXT
+    pb = _problem(DZHANIBEKOV_I, [0.1, 50.0, 0.0], duration=30.0)
+    with pytest.raises(EngineDiverged) as info:
+        MujocoAdapter(pb, 0.01, "Euler").simulate(3000)
+    e = info.value
+    assert "BADQACC" in e.reason
+    assert e.t < 30.0
+    assert len(e.trajectory) == round(e.t / 0.01) + 1
+    assert np.max(np.abs(e.trajectory.angular_velocity[-1])) > 1e6  # not reset to rest
+    # the step-by-step loop sees the same warning through instability()
+    with pytest.raises(EngineDiverged) as info2:
+        Adapter.simulate(MujocoAdapter(pb, 0.01, "Euler"), 3000)
+    assert info2.value.t == e.t
+
+
+def test_recorded_settings():
+    pb = _general_problem(gravity=(0.5, -1.0, -3.0))
+    a = MujocoAdapter(pb, 0.004, "implicit")
+    s = a.settings
+    assert s["timestep"] == {"default": 0.002, "set": 0.004}
+    assert s["gravity"] == {"default": [0.0, 0.0, -9.81], "set": [0.5, -1.0, -3.0]}
+    assert s["integrator"] == {"default": "Euler", "set": "implicit"}
+    assert a.model.opt.timestep == 0.004
+    assert a.model.opt.integrator == int(mujoco.mjtIntegrator.mjINT_IMPLICIT)
+    if hasattr(mujoco.mjtDisableBit, "mjDSBL_AUTORESET"):
+        assert s["autoreset"] == {"default": True, "set": False}
+    assert "compiler.alignfree" not in s or s["compiler.alignfree"]["set"] is False
+
+
+def test_integrators_and_conventions():
+    offered = MujocoAdapter.offered_integrators()
+    assert offered[0] == "Euler"
+    assert set(offered) <= {"Euler", "RK4", "implicit", "implicitfast", "discrete"}
+    assert {"RK4", "implicit", "implicitfast"} <= set(offered)
+    for key in ("quaternion order", "angular velocity frame", "inertia input", "velocity clamp",
+                "damping", "sleeping", "freebody sets"):
+        assert MujocoAdapter.conventions[key]
+    with pytest.raises(ValueError):
+        MujocoAdapter(_general_problem(), 0.01, "rk4")
