@@ -1,0 +1,183 @@
+"""Convention self-checks: does an engine, through its adapter, build the case we asked for and
+read it back in freebody's convention?  Used by the test suite and shown live by
+``freebody conventions``.
+
+Each check builds a small problem, runs it on the engine and compares with what the canonical
+convention predicts; each returns a :class:`CheckResult` (never raises for an engine's failure).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .adapters.base import load_adapter
+from .reference_impl.conventions import angular_momentum
+from .reference_impl.integrators import simulate as reference_simulate
+from .reference_impl.problem import Body, InitialState, Load, Problem
+from .reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply
+
+INITIAL_STATE_ATOL = 1e-12  # reading back what was just set: conversions only, round-off
+# One step of h = 1e-3 from rest with a push: the engines' maps change L by h tau to within
+# O(h^2 |tau| / I) (the rotation of the body during the step), far below this relative bound;
+# a wrong frame or sign of the arm is an O(1) error.
+PUSH_TORQUE_RTOL = 1e-3
+# A torque-free spin keeps L as well as the reference map the engine implements: allow 10% over
+# the better of the candidate maps (their L errors differ by orders of magnitude from the truth's).
+L_DRIFT_FACTOR = 1.1
+L_DRIFT_ATOL = 1e-12  # relative L error floor (round-off over 2 s at dt = 1e-3)
+# A spin about a principal axis has no gyroscopic term: the engines' exponential-map update is
+# exact, so only round-off (and a clamp or per-step rotation cap, if any) separates it from truth;
+# an RK4 engine may in addition show RK4's own error (the reference rk4's, times L_DRIFT_FACTOR).
+HIGH_SPIN_RAD = 1e-9
+
+CHECKS = ("initial_state", "push_world_point", "push_body_point", "torque_free_L", "high_spin")
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    """One check on one engine/integrator: passed, the measured value, its bound, a sentence."""
+
+    check: str
+    engine: str
+    integrator: str
+    passed: bool
+    value: float | None
+    bound: float
+    detail: str
+
+
+def _generic_initial() -> InitialState:
+    q = quat_from_rotvec(np.array([0.4, -0.7, 0.25]))
+    return InitialState(position=[1.5, -2.0, 0.75], quaternion_wxyz=q,
+                        linear_velocity=[0.3, -0.4, 1.2], angular_velocity=[0.7, -1.1, 2.3])
+
+
+def _non_diagonal_body() -> Body:
+    Q = matrix_from_quat(quat_from_rotvec(np.array([0.3, 0.2, -0.5])))
+    return Body(1.7, Q.T @ np.diag([0.9, 1.6, 2.1]) @ Q)
+
+
+def _run(engine, integrator, problem, dt, steps):
+    cls = load_adapter(engine)
+    adapter = cls(problem, dt, integrator)
+    try:
+        return adapter.simulate(steps)
+    finally:
+        adapter.close()
+
+
+def check_initial_state(engine: str, integrator: str) -> CheckResult:
+    pb = Problem("selfcheck-initial", "", _non_diagonal_body(), _generic_initial(), gravity=[0, 0, -9.81],
+                 duration_steps=1)
+    tr = _run(engine, integrator, pb, 1e-3, 0)
+    init = pb.initial
+    errs = [np.max(np.abs(tr.position[0] - init.position)),
+            float(geodesic_angle(tr.quaternion_wxyz[0], init.quaternion_wxyz)),
+            np.max(np.abs(tr.linear_velocity[0] - init.linear_velocity)),
+            np.max(np.abs(tr.angular_velocity[0] - init.angular_velocity))]
+    worst = float(max(errs))
+    names = ("position", "orientation", "linear velocity", "angular velocity")
+    detail = ", ".join(f"{n} {e:.1e}" for n, e in zip(names, errs))
+    return CheckResult("initial_state", engine, integrator, worst <= INITIAL_STATE_ATOL, worst,
+                       INITIAL_STATE_ATOL, f"state read back at t = 0 vs the case: {detail}")
+
+
+def _check_push(engine: str, integrator: str, world_point: bool) -> CheckResult:
+    h = 1e-3
+    f = np.array([0.0, 3.0, -2.0])
+    init = _generic_initial()
+    init = InitialState(init.position, init.quaternion_wxyz, init.linear_velocity, np.zeros(3))
+    b = np.array([0.5, 0.2, -0.3])  # body-frame offset
+    R0 = matrix_from_quat(init.quaternion_wxyz)
+    if world_point:
+        point = init.position + R0 @ b
+        load = Load(force=f, point=point, start=0.0, steps=1)
+    else:
+        load = Load(force=f, body_point=b, start=0.0, steps=1)
+    pb = Problem("selfcheck-push", "", _non_diagonal_body(), init, gravity=[0, 0, 0], loads=(load,),
+                 duration_steps=1)
+    tr = _run(engine, integrator, pb, h, 1)
+    L = angular_momentum(pb.body.I_body, tr.quaternion_wxyz, tr.angular_velocity)
+    expected = h * np.cross(R0 @ b, f)
+    err = float(np.linalg.norm(L[1] - L[0] - expected) / np.linalg.norm(expected))
+    name = "push_world_point" if world_point else "push_body_point"
+    where = "a world point" if world_point else "a body-frame point"
+    return CheckResult(name, engine, integrator, err <= PUSH_TORQUE_RTOL, err, PUSH_TORQUE_RTOL,
+                       f"one-step push at {where} on a rotated, moving body: |dL - h (r - x) x f| / |h tau| = {err:.1e}")
+
+
+def check_push_world_point(engine: str, integrator: str) -> CheckResult:
+    return _check_push(engine, integrator, world_point=True)
+
+
+def check_push_body_point(engine: str, integrator: str) -> CheckResult:
+    return _check_push(engine, integrator, world_point=False)
+
+
+def check_torque_free_L(engine: str, integrator: str) -> CheckResult:
+    h, steps = 1e-3, 2000
+    pb = Problem("selfcheck-L", "", _non_diagonal_body(), _generic_initial(), gravity=[0, 0, 0],
+                 duration_steps=steps)
+    tr = _run(engine, integrator, pb, h, steps)
+    I_b = pb.body.I_body
+
+    def drift(t):
+        L = angular_momentum(I_b, t.quaternion_wxyz, t.angular_velocity)
+        return float(np.max(np.linalg.norm(L - L[0], axis=1)) / np.linalg.norm(L[0]))
+
+    candidates = ["semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro"]
+    if "rk4" in integrator.lower():
+        candidates.append("rk4")
+    ref = {c: drift(reference_simulate(pb, c, h, steps)) for c in candidates}
+    bound = L_DRIFT_FACTOR * max(ref.values()) + L_DRIFT_ATOL
+    got = drift(tr)
+    ok = bool(np.isfinite(got) and got <= bound)
+    refs = ", ".join(f"{k} {v:.1e}" for k, v in ref.items())
+    return CheckResult("torque_free_L", engine, integrator, ok, got, bound,
+                       f"max relative L drift over 2 s at dt = 1e-3: {got:.1e} (reference maps: {refs})")
+
+
+def check_high_spin(engine: str, integrator: str) -> CheckResult:
+    h, steps, rate = 1e-3, 200, 150.0
+    q0 = quat_from_rotvec(np.array([0.2, 0.1, -0.3]))
+    axis_body = np.array([0.0, 0.0, 1.0])
+    w_world = rate * (matrix_from_quat(q0) @ axis_body)
+    pb = Problem("selfcheck-spin", "", Body(1.0, np.diag([1.0, 2.0, 2.5])),
+                 InitialState(np.zeros(3), q0, np.zeros(3), w_world), gravity=[0, 0, 0], duration_steps=steps)
+    tr = _run(engine, integrator, pb, h, steps)
+    exact = quat_multiply(quat_from_rotvec(np.outer(tr.t, w_world)), q0)
+    err = float(np.max(geodesic_angle(exact, tr.quaternion_wxyz)))
+    bound = HIGH_SPIN_RAD
+    if "rk4" in integrator.lower():
+        ref = reference_simulate(pb, "rk4", h, steps)
+        bound += L_DRIFT_FACTOR * float(np.max(geodesic_angle(exact, ref.quaternion_wxyz)))
+    ok = bool(np.isfinite(err) and err <= bound)
+    return CheckResult("high_spin", engine, integrator, ok, err, bound,
+                       f"150 rad/s about one body axis, dt = 1e-3, 0.2 s: orientation error {err:.1e} rad "
+                       f"(|w| read back {np.linalg.norm(tr.angular_velocity[-1]):.6g} rad/s)")
+
+
+CHECK_FUNCTIONS = {
+    "initial_state": check_initial_state,
+    "push_world_point": check_push_world_point,
+    "push_body_point": check_push_body_point,
+    "torque_free_L": check_torque_free_L,
+    "high_spin": check_high_spin,
+}
+
+
+def run_check(check: str, engine: str, integrator: str) -> CheckResult:
+    """Run one check; an engine error becomes a failed check with the error as its detail."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return CHECK_FUNCTIONS[check](engine, integrator)
+    except Exception as e:
+        return CheckResult(check, engine, integrator, False, None, float("nan"),
+                           f"raised {type(e).__name__}: {e}")
+
+
+def run_all(engine: str, integrators: list[str] | None = None) -> list[CheckResult]:
+    """Every check on every (or the given) integrator of an engine."""
+    cls = load_adapter(engine)
+    return [run_check(c, engine, i) for i in (integrators or cls.offered_integrators()) for c in CHECKS]
