@@ -78,6 +78,40 @@ _PROBE_SPEED = 300.0  # m/s and rad/s: one world coordinate >= 300 / sqrt(3) > 1
 _INITIAL_STATE_TOL = 1e-9  # build() re-reads the initial state (the tests check 1e-12)
 
 
+class _LoadPlan:
+    """The loads active over an interval of steps, grouped by what they need at each step.
+
+    world_point_forces : [(force [3] N world, point [3] m world)], applied as they are.
+    body_point_forces : [(force [3] N world, body_point (3,) m body frame)].
+    com_force : [3] N world (sum of the forces at the COM), or None.
+    torque : (3,) N m world, sum of the world couples; torque_list its list, or None when zero.
+    body_torque : (3,) N m body frame, sum of the body couples, or None when zero.
+    """
+
+    def __init__(self, loads: tuple[Load, ...]):
+        self.world_point_forces, self.body_point_forces = [], []
+        com = np.zeros(3)
+        has_com = False
+        self.torque = np.zeros(3)
+        body_torque = np.zeros(3)
+        for ld in loads:
+            if np.any(ld.force != 0.0):
+                if ld.point is not None:
+                    self.world_point_forces.append((ld.force.tolist(), ld.point.tolist()))
+                elif ld.body_point is not None:
+                    self.body_point_forces.append((ld.force.tolist(), np.array(ld.body_point)))
+                else:
+                    com = com + ld.force
+                    has_com = True
+            self.torque = self.torque + ld.torque
+            body_torque = body_torque + ld.body_torque
+        self.com_force = com.tolist() if has_com else None
+        self.body_torque = body_torque if np.any(body_torque != 0.0) else None
+        self.torque_list = self.torque.tolist() if np.any(self.torque != 0.0) else None
+        self.needs_rotation = bool(self.body_point_forces) or self.body_torque is not None
+        self.needs_pose = self.needs_rotation or has_com
+
+
 class PybulletAdapter(Adapter):
     name: ClassVar[str] = "pybullet"
     import_name: ClassVar[str] = "pybullet"
@@ -288,50 +322,60 @@ class PybulletAdapter(Adapter):
 
     # --- loads ----------------------------------------------------------------------------------
     def _setup_loads(self) -> None:
-        """Step indices where the active set of loads changes, for a cached lookup per interval."""
+        """Step indices where the active set of loads changes, for a cached plan per interval."""
         bounds = {0}
         for ld in self.problem.loads:
             for k in ld.step_range(self.dt):
                 if np.isfinite(k):
                     bounds.add(int(k))
         self._load_bounds = sorted(bounds)
-        self._load_cache: dict[int, tuple[Load, ...]] = {}
+        self._load_plans: dict[int, _LoadPlan | None] = {}
+        # V^T: principal frame -> body frame, to turn PyBullet's inertial-frame matrix into R_body.
+        self._Vt = matrix_from_quat(self._q_V).T
 
-    def _active_loads(self, k: int) -> tuple[Load, ...]:
+    def _plan(self, k: int) -> _LoadPlan | None:
+        """The loads acting on step k, pre-grouped (cached per interval between switches)."""
         i = bisect.bisect_right(self._load_bounds, k) - 1
-        loads = self._load_cache.get(i)
-        if loads is None:
-            loads = self.problem.active_loads(k, self.dt)
-            self._load_cache[i] = loads
-        return loads
+        if i in self._load_plans:
+            return self._load_plans[i]
+        loads = self.problem.active_loads(k, self.dt)
+        plan = _LoadPlan(loads) if loads else None
+        self._load_plans[i] = plan
+        return plan
 
     def apply_loads(self, k: int) -> None:
-        """applyExternalForce (world point) and applyExternalTorque (world couple), WORLD_FRAME.
+        """applyExternalForce at world points and applyExternalTorque (world couple), WORLD_FRAME.
 
-        Torque arms use the state at the start of the step (read from the engine now).
+        A force at a fixed world point goes to the engine as is (the engine forms the torque
+        (point - COM) x f); a force at a body point goes at x + R body_point and a force at the
+        COM at x, with x and R the pose at the start of the step (read from the engine now).
+        Couples: torque + R body_torque.
         """
         if not self.problem.loads:
             return
-        loads = self._active_loads(k)
-        if not loads:
+        plan = self._plan(k)
+        if plan is None:
             return
-        pb, cid, b = pybullet, self._cid, self._body
-        x, q = self._read_pose()
-        R = matrix_from_quat(q)
-        tau = np.zeros(3)
-        for ld in loads:
-            if np.any(ld.force != 0.0):
-                if ld.point is not None:
-                    at = ld.point
-                elif ld.body_point is not None:
-                    at = x + R @ ld.body_point
-                else:
-                    at = x
-                pb.applyExternalForce(b, -1, ld.force.tolist(), at.tolist(), pb.WORLD_FRAME,
-                                      physicsClientId=cid)
-            tau += ld.torque + R @ ld.body_torque
-        if np.any(tau != 0.0):
-            pb.applyExternalTorque(b, -1, tau.tolist(), pb.WORLD_FRAME, physicsClientId=cid)
+        pb, cid, b, world = pybullet, self._cid, self._body, pybullet.WORLD_FRAME
+        force = pb.applyExternalForce
+        if plan.needs_pose:
+            x, orn = pb.getBasePositionAndOrientation(b, physicsClientId=cid)
+            if plan.needs_rotation:
+                # R_body = R_inertial V^T (R_inertial from PyBullet's own xyzw conversion).
+                R = np.reshape(pb.getMatrixFromQuaternion(orn), (3, 3)) @ self._Vt
+                xa = np.array(x)
+                for f, bp in plan.body_point_forces:
+                    force(b, -1, f, (xa + R @ bp).tolist(), world, physicsClientId=cid)
+            if plan.com_force is not None:
+                force(b, -1, plan.com_force, x, world, physicsClientId=cid)
+        for f, p in plan.world_point_forces:
+            force(b, -1, f, p, world, physicsClientId=cid)
+        if plan.body_torque is not None:
+            tau = (plan.torque + R @ plan.body_torque).tolist()
+        else:
+            tau = plan.torque_list
+        if tau is not None:
+            pb.applyExternalTorque(b, -1, tau, world, physicsClientId=cid)
 
     # --- stepping and reading -----------------------------------------------------------------
     def step(self) -> None:
