@@ -122,23 +122,26 @@ class Adapter(ABC):
 
     # --- the run loop ----------------------------------------------------------------------------
     def simulate(self, steps: int) -> Trajectory:
-        """Step ``steps`` times from the initial state; the trajectory has steps + 1 samples.
+        """Step ``steps`` times from the current state (the initial state on a fresh adapter); the
+        trajectory has steps + 1 samples, t = (k0 + i) dt with k0 = self.k.
 
         Raises :class:`EngineDiverged` (with the trajectory so far) when the engine reports an
-        instability or the state turns non-finite.
+        instability.
         """
+        k0 = self.k
         out = Trajectory.empty(steps + 1)
-        out.t[:] = np.arange(steps + 1) * self.dt
+        out.t[:] = (k0 + np.arange(steps + 1)) * self.dt
         pos, quat, vel, ang = out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity
         pos[0], quat[0], vel[0], ang[0] = self.read_state()
-        for k in range(steps):
+        for i in range(steps):
+            k = k0 + i
             self.apply_loads(k)
             self.step()
             self.k = k + 1
-            pos[k + 1], quat[k + 1], vel[k + 1], ang[k + 1] = self.read_state()
+            pos[i + 1], quat[i + 1], vel[i + 1], ang[i + 1] = self.read_state()
             warning = self.instability()
             if warning is not None:
-                raise EngineDiverged((k + 1) * self.dt, warning, _truncate(out, k + 2))
+                raise EngineDiverged(self.k * self.dt, warning, _truncate(out, i + 2))
         return out
 
 

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from .adapters.base import (EngineDiverged, EngineMissing, UnknownEngine, is_available, load_adapter,
                             resolve_engine, engine_names)
+from .capture import capture_output
 from .errors import InputError
 from .metrics import Series, divergence, summarize
 from .reference_impl.conventions import Trajectory
@@ -73,6 +74,7 @@ class RunResult:
     matches_reference: dict | None = None
     diverged_at_s: float | None = None
     trajectory: str | None = None
+    engine_output: list = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -111,7 +113,8 @@ def engine_integrators(engine: str) -> tuple[str, ...] | None:
     if not is_available(engine):
         return None
     try:
-        return load_adapter(engine).offered_integrators()
+        with capture_output():  # some engines print a banner on import (pybullet)
+            return load_adapter(engine).offered_integrators()
     except Exception:
         return None
 
@@ -199,9 +202,21 @@ class TruthCache:
 
 
 def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: bool = True) -> RunOutput:
-    """Run one spec; never raises for an engine's failure (that is the run's status)."""
+    """Run one spec; never raises for an engine's failure (that is the run's status).
+
+    What the engine prints on the C level is captured into the result's ``engine_output``.
+    """
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        return _execute(spec, cache, identify_scheme)
+        with capture_output() as captured:
+            out = _execute(spec, cache, identify_scheme)
+    if captured.total:
+        r = out.result
+        message = r.message
+        if r.status in ("failed", "diverged"):
+            message = f"{message} [engine printed: {captured.lines[0][:200]}]"
+        out = RunOutput(replace(r, engine_output=captured.summary(), message=message),
+                        out.trajectory, out.truth, out.series)
+    return out
 
 
 def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> RunOutput:
