@@ -39,7 +39,7 @@ from .reference_impl import massprops
 from .reference_impl.problem import Body, InitialState, Load, Problem
 
 TOP_KEYS = {"name", "description", "duration", "duration_steps", "dt", "body", "initial", "world", "loads"}
-BODY_KEYS = {"mass", "inertia", "shape", "size", "density"}
+BODY_KEYS = {"mass", "inertia", "shape", "size", "density", "mesh"}
 INITIAL_KEYS = {"position", "orientation", "linear_velocity", "angular_velocity"}
 WORLD_KEYS = {"gravity"}
 LOAD_KEYS = {"force", "point", "body_point", "torque", "body_torque", "start", "steps", "end"}
@@ -216,9 +216,11 @@ def parse_case(data: dict, source: str = "<case>") -> Problem:
 
 def _parse_body(c: _Ctx, b) -> Body:
     c.keys(b, BODY_KEYS, "body")
+    if "mesh" in b:
+        return _parse_mesh_body(c, b)
     has_inertia, has_shape = "inertia" in b, "shape" in b
     if has_inertia == has_shape:
-        c.fail("body.inertia", "give exactly one of inertia and shape")
+        c.fail("body.inertia", "give exactly one of inertia, shape and mesh")
     if has_inertia:
         for k in ("size", "density"):
             if k in b:
@@ -245,6 +247,34 @@ def _parse_body(c: _Ctx, b) -> Body:
         I = massprops.inertia(shape, size, mass)
     validate_inertia(I, lambda why: c.fail("body.inertia", why))
     return Body(mass=mass, I_body=0.5 * (I + I.T))
+
+
+def _parse_mesh_body(c: _Ctx, b) -> Body:
+    """``mesh = "path.obj"`` (OBJ or STL, relative to the case file's folder) with mass or density.
+
+    Mass, COM and inertia come from exact polyhedral integration (docs/mass-properties.md).  The
+    body origin is the mesh's COM: the mesh's axes are the body axes, and the case's
+    initial.position is where that COM starts (world).
+    """
+    from .meshfile import body_from_mesh
+    from .reference_impl.mesh import MeshError
+
+    for k in ("inertia", "shape", "size"):
+        if k in b:
+            c.fail(f"body.{k}", "give exactly one of inertia, shape and mesh (a mesh is given)")
+    if not isinstance(b["mesh"], str) or not b["mesh"].strip():
+        c.fail("body.mesh", f"must be a path to an .obj or .stl file, got {b['mesh']!r}")
+    if ("mass" in b) == ("density" in b):
+        c.fail("body.mass", "give exactly one of mass and density (with mesh)")
+    key = "mass" if "mass" in b else "density"
+    value = c.number(b[key], f"body.{key}", positive=True)
+    path = Path(c.source).parent / b["mesh"]
+    try:
+        _, props = body_from_mesh(path, **{key: value})
+    except MeshError as e:
+        c.fail("body.mesh", f"{path}: {e}")
+    validate_inertia(props.inertia, lambda why: c.fail("body.mesh", f"{path}: inertia {why}"))
+    return Body(mass=props.mass, I_body=props.inertia)
 
 
 def _parse_initial(c: _Ctx, t) -> InitialState:
