@@ -98,6 +98,8 @@ class _Ctx:
         self.source = source
 
     def fail(self, key: str, reason: str):
+        key = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in key)
+        reason = " ".join(reason.splitlines())
         raise InputError(f"{self.source}: {key}: {reason}")
 
     def keys(self, table, allowed: set[str], where: str, required: set[str] = frozenset()):
