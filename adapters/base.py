@@ -168,6 +168,7 @@ ENGINES: dict[str, tuple[str, str, str]] = {
     "mujoco": ("mujoco", "freebody.adapters.mujoco_adapter", "MujocoAdapter"),
     "pybullet": ("pybullet", "freebody.adapters.pybullet_adapter", "PybulletAdapter"),
     "dart": ("dartpy", "freebody.adapters.dart_adapter", "DartAdapter"),
+    "mjx": ("jax", "freebody.adapters.mjx_adapter", "MjxAdapter"),
 }
 
 
@@ -216,7 +217,9 @@ def load_adapter(name: str) -> type[Adapter]:
     try:
         mod = importlib.import_module(module)
     except ImportError as e:
-        if e.name == import_name:
+        # only "no module named <engine>" means missing; "cannot import name X from <engine>"
+        # (also e.name == engine) is a broken install
+        if isinstance(e, ModuleNotFoundError) and e.name == import_name:
             raise EngineMissing(f"{name} is not installed (import {import_name!r} failed): "
                                 f"pip install 'freebody[engines]'") from e
         raise
