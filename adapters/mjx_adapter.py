@@ -1,0 +1,478 @@
+"""MJX (MuJoCo's JAX port, ``mujoco-mjx``) as a freebody engine, in float32 or float64.
+
+The world is the MuJoCo adapter's: :class:`~freebody.adapters.mujoco_adapter.MujocoAdapter` builds
+the MJCF and the C ``MjModel``/``MjData`` (one body, a free joint, full inertia, alignfree off, the
+case's timestep, gravity and integrator, initial state written and ``mj_forward`` done), and this
+adapter moves them to JAX with ``mjx.put_model`` / ``mjx.put_data``.  So MJX's conventions are
+MuJoCo's, converted the same way:
+
+- ``qpos`` (7,) = [body origin = COM (3,) m world, quaternion (4,) (w, x, y, z) body -> world]:
+  no reordering.
+- ``qvel`` (6,) = [linear velocity (3,) m/s world, angular velocity (3,) rad/s BODY frame]:
+  written as ``R^T w_world`` by the MuJoCo adapter, read back as ``R w_body``.
+- Loads: ``xfrc_applied[1]`` (6,) = [force (3,) N world, torque (3,) N m world about the COM],
+  rewritten before every step inside the scan (see below), exactly the wrench the MuJoCo adapter
+  writes (same load segments, arms from the state at the start of the step).
+
+Stepping.  A run is ``jax.lax.scan`` of ``mjx.step`` under ``jax.jit`` over chunks of
+``CHUNK_STEPS`` steps (the last one padded with load-free steps whose samples are dropped), so a
+run of N steps costs ceil(N / CHUNK_STEPS) calls from Python and one compilation per (model
+structure, integrator, precision) and process: the model is an argument of the compiled function
+(not a constant), so bodies of different mass and inertia share it.  The compiled executables are
+kept in a module-level cache; ``compile_time_s`` on the adapter is the time this run spent tracing
+and compiling (0 when the cache had it), ``step_time_s`` the time spent stepping.  Set the JAX
+option ``JAX_COMPILATION_CACHE_DIR`` to keep compilations across processes.
+
+Per-step loads are a (steps, _ROW) float array computed before the run from the case's load
+segments (the MuJoCo adapter's ``_segments``); inside the scan the state-dependent parts use the
+current ``qpos``:  world torque = const + (c - x) x F_point + axial(R M) + R tau_body, where ``c``
+is the first world-point load's point (the other world-point loads' (p_i - c) x f_i are folded
+into const), F_point the sum of world-point forces, M = sum of body_point (x) force (3, 3) (so
+axial(R M) = sum (R b_i) x f_i) and tau_body the body-frame couples.
+
+Precision.  ``float64`` or ``float32`` (JAX's default).  Everything a run does (put_model,
+put_data, tracing, compiling, stepping) runs inside JAX's thread-local ``jax.enable_x64(on)``
+scope: the process-wide ``jax_enable_x64`` flag is never changed, so float32 and float64 runs mix
+freely in one process (and in spawned workers).  Enabling x64 globally and casting the model and
+data to float32 does NOT give a float32 run: MJX allocates float64 temporaries under x64 and
+``qpos`` comes back float64.  A float32 run is verified at compile time (the lowered StableHLO has
+no f64 type) and at run time (``qpos`` is float32); the trajectory is returned in float64 (the
+float32 values, widened exactly).  Model numbers (mass, inertia, dt, gravity) and the initial
+state are rounded to float32 in a float32 run.
+
+Integrators: what ``mjx.step`` implements: ``Euler``, ``RK4``, ``implicitfast`` (MJX's
+implicitfast has no RNE derivative: the gyroscopic term stays explicit, unlike C MuJoCo 4.0's).
+``implicit`` is rejected by ``put_model`` and ``discrete`` by ``mjx.step``.
+
+Instability: MJX has no warnings counter (C MuJoCo's "Nan, Inf or huge value" checks) and no
+auto-reset: a blow-up grows until the state is non-finite, and ``simulate`` returns it as
+computed; the harness detects it (non-finite values, and its bounds on a huge but finite state).
+``instability()`` is always None.
+
+Engine defaults changed (recorded, read back): the MuJoCo adapter's (timestep, gravity,
+integrator, alignfree, and the C auto-reset flag, which MJX ignores), and ``jax_enable_x64``
+(the process-wide value -> the run's scoped value).  Importing ``mujoco.mjx`` prints "Failed to
+import warp" on stdout when NVIDIA Warp is absent: the import is done with stdout captured.
+"""
+from __future__ import annotations
+
+import contextlib
+import importlib.metadata
+import importlib.util
+import io
+import time
+from dataclasses import dataclass, field, replace
+from typing import ClassVar
+
+import numpy as np
+
+import jax  # ModuleNotFoundError "jax": the registry reports the engine missing (a skip)
+
+if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("mujoco.mjx") is None:
+    # jax without mujoco-mjx is a missing engine too (the registry skips on the name "jax");
+    # a broken mujoco-mjx install still fails loudly in the import below
+    raise ModuleNotFoundError("mujoco-mjx is not installed: pip install 'freebody[jax]'", name="jax")
+with contextlib.redirect_stdout(io.StringIO()):  # mjx prints Warp's absence on stdout
+    from mujoco import mjx
+import jax.numpy as jnp  # noqa: E402
+import mujoco  # noqa: E402
+
+from ..reference_impl.conventions import Trajectory  # noqa: E402
+from ..reference_impl.problem import Problem  # noqa: E402
+from .base import Adapter  # noqa: E402
+from .mujoco_adapter import MujocoAdapter, _segments, _trajectory  # noqa: E402
+
+# freebody's integrator name (MuJoCo's spelling) -> mjx.IntegratorType member, default first:
+# the ones mjx.step implements (IntegratorType also has DISCRETE, which mjx.step rejects).
+_INTEGRATOR_ENUM: dict[str, str] = {"Euler": "EULER", "RK4": "RK4", "implicitfast": "IMPLICITFAST"}
+
+PRECISIONS: tuple[str, ...] = ("float32", "float64")
+_DTYPE = {"float32": np.float32, "float64": np.float64}
+
+# Steps per compiled scan call: the compiled function's length is static, so runs of any length
+# share one compilation; a run pays at most CHUNK_STEPS - 1 padding steps.
+CHUNK_STEPS = 1000
+
+_BODY = 1  # body id of the free body (0 is the world)
+
+# One row of per-step loads (the step's load set; see the module docstring):
+# [0:3] force N world, [3:6] constant torque N m world, [6:9] anchor c m world,
+# [9:12] F_point N world, [12:21] M = sum b_i f_i^T (3, 3) row-major (m N), [21:24] tau_body N m body.
+_ROW = 24
+
+# compiled executables: key -> jax.stages.Compiled
+_COMPILED: dict = {}
+
+
+def _x64_scope(on: bool):
+    """JAX's thread-local x64 scope (``jax.enable_x64`` in JAX >= 0.5; the experimental context
+    managers before)."""
+    state = getattr(jax, "enable_x64", None)
+    if state is not None:
+        return state(on)
+    from jax.experimental import disable_x64, enable_x64
+    return enable_x64() if on else disable_x64()
+
+
+@contextlib.contextmanager
+def _x64(on: bool):
+    """Run the block with jax_enable_x64 = on, without touching the process-wide flag.
+
+    JAX's trace/lowering caches do not tell the two x64 modes apart for every function (JAX
+    0.10.2: MJX's RK4 calls ``jnp.tril`` on a numpy constant; traced under one mode, it fails to
+    lower under the other with "operand type mismatch ... f32 ... f64").  So the caches are
+    cleared on entering and on leaving a scope whose mode differs from the one in force outside,
+    and code outside (this module's later runs, the user's own JAX code) never meets a trace
+    made under the other mode.  The compiled executables this module keeps are not affected."""
+    outer = _current_x64()
+    if on != outer:
+        jax.clear_caches()
+    try:
+        with _x64_scope(on):
+            yield
+    finally:
+        if on != outer:
+            jax.clear_caches()
+
+
+def _current_x64() -> bool:
+    """jax_enable_x64 as in force here (the process-wide value outside any scope)."""
+    return bool(jax.config.jax_enable_x64)
+
+
+# --- the step inside the scan ---------------------------------------------------------------------
+
+def _quat_matrix(q):
+    """R(q) (3, 3) body -> world from a unit quaternion (w, x, y, z) (JAX arrays)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return jnp.stack([
+        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
+        jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
+        jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
+    ])
+
+
+def _loaded_step(m, d, row):
+    """xfrc_applied[body] = the row's wrench at the current state, then mjx.step."""
+    x, q = d.qpos[0:3], d.qpos[3:7]
+    R = _quat_matrix(q)
+    A = R @ row[12:21].reshape(3, 3)                      # sum (R b_i) f_i^T
+    tau = (row[3:6] + jnp.cross(row[6:9] - x, row[9:12])
+           + jnp.stack([A[1, 2] - A[2, 1], A[2, 0] - A[0, 2], A[0, 1] - A[1, 0]])
+           + R @ row[21:24])
+    xfrc = d.xfrc_applied.at[_BODY, 0:3].set(row[0:3]).at[_BODY, 3:6].set(tau)
+    return mjx.step(m, d.replace(xfrc_applied=xfrc))
+
+
+def _chunk(m, d, rows):
+    """Scan _loaded_step over rows (C, _ROW): (final Data, qpos (C, 7), qvel (C, 6))."""
+    def body(dd, row):
+        dd = _loaded_step(m, dd, row)
+        return dd, (dd.qpos, dd.qvel)
+    d, (Q, V) = jax.lax.scan(body, d, rows)
+    return d, Q, V
+
+
+_chunk_jit = jax.jit(_chunk)
+_step_jit = jax.jit(_loaded_step)
+
+
+def _compiled(kind: str, fn, precision: str, args, extra=()):
+    """The compiled ``fn(*args)`` from the cache, compiling on a miss.  Returns (compiled,
+    seconds spent lowering and compiling: 0.0 on a hit).  A float32 compilation is checked to
+    contain no f64 type."""
+    leaves, treedef = jax.tree_util.tree_flatten(args)
+    key = (kind, precision, treedef, extra,
+           tuple((tuple(np.shape(a)), str(getattr(a, "dtype", type(a).__name__))) for a in leaves))
+    hit = _COMPILED.get(key)
+    if hit is not None:
+        return hit, 0.0
+    t0 = time.perf_counter()
+    lowered = fn.lower(*args)
+    if precision == "float32":
+        text = lowered.as_text()
+        if "f64" in text:
+            raise RuntimeError("the float32 MJX computation contains float64 operations "
+                               "(jax_enable_x64 leaked into the float32 scope?)")
+    compiled = lowered.compile()
+    _COMPILED[key] = compiled
+    return compiled, time.perf_counter() - t0
+
+
+# --- building -----------------------------------------------------------------------------------
+
+def _check(what: str, got, want) -> None:
+    if not np.array_equal(np.asarray(got), np.asarray(want)):
+        raise RuntimeError(f"mjx did not take the setting {what}: set {want!r}, read back {got!r}")
+
+
+def _build(problem: Problem, dt: float, integrator: str, precision: str, x64_default: bool):
+    """(mjx.Model, mjx.Data, settings) for a problem, inside the caller's x64 scope: the MuJoCo
+    adapter's C model and data moved to JAX, settings read back from the mjx.Model.
+    x64_default: jax_enable_x64 outside the scope."""
+    if integrator not in MjxAdapter.offered_integrators():
+        raise ValueError(f"mjx {MjxAdapter.engine_version()} has no integrator {integrator!r}; "
+                         f"offered: {', '.join(MjxAdapter.offered_integrators())}")
+    if precision not in PRECISIONS:
+        raise ValueError(f"mjx offers the precisions {PRECISIONS}, not {precision!r}")
+    c = MujocoAdapter(problem, dt, integrator, "float64")
+    try:
+        settings = dict(c.settings)
+        mx = mjx.put_model(c.model)
+        dx = mjx.put_data(c.model, c.data)
+    finally:
+        c.close()
+    dtype = _DTYPE[precision]
+    _check("timestep", mx.opt.timestep, dtype(dt))
+    _check("gravity", mx.opt.gravity, np.asarray(problem.gravity, dtype=dtype))
+    _check("integrator", int(mx.opt.integrator), int(getattr(mjx.IntegratorType,
+                                                             _INTEGRATOR_ENUM[integrator])))
+    if dx.qpos.dtype != dtype:
+        raise RuntimeError(f"mjx data is {dx.qpos.dtype}, not {precision}")
+    settings["jax_enable_x64"] = {"default": bool(x64_default), "set": _current_x64()}
+    _check("jax_enable_x64 (scoped)", settings["jax_enable_x64"]["set"], precision == "float64")
+    return mx, dx, settings
+
+
+def _load_rows(problem: Problem, dt: float, k0: int, k1: int, dtype) -> np.ndarray:
+    """Per-step load rows (k1 - k0, _ROW) for the steps k0 <= k < k1 (see _ROW)."""
+    rows = np.zeros((k1 - k0, _ROW))
+    for seg in _segments(problem, dt):
+        a, b = max(seg.k0, k0), min(seg.k1, k1)
+        if a >= b:
+            continue
+        row = np.zeros(_ROW)
+        row[0:6] = seg.constant
+        if seg.point_forces:
+            anchor = seg.point_forces[0][0]
+            row[6:9] = anchor
+            for p, f in seg.point_forces:
+                row[9:12] += f
+                row[3:6] += np.cross(p - anchor, f)
+        M = np.zeros((3, 3))
+        for bp, f in seg.body_point_forces:
+            M += np.outer(bp, f)
+        row[12:21] = M.ravel()
+        if seg.body_torque is not None:
+            row[21:24] = seg.body_torque
+        rows[int(a) - k0:int(b) - k0] = row
+    return rows.astype(dtype)
+
+
+def _first_bad(Q: np.ndarray, V: np.ndarray) -> int | None:
+    """Index of the first row with a non-finite qpos or qvel, or None."""
+    bad = ~(np.isfinite(Q).all(axis=-1) & np.isfinite(V).all(axis=-1))
+    return int(np.argmax(bad)) if bad.any() else None
+
+
+class MjxAdapter(Adapter):
+    name: ClassVar[str] = "mjx"
+    import_name: ClassVar[str] = "jax"
+    install_hint: ClassVar[str] = "pip install 'freebody[jax]'"
+    integrators: ClassVar[tuple[str, ...]] = tuple(_INTEGRATOR_ENUM)
+    precisions: ClassVar[tuple[str, ...]] = PRECISIONS
+    conventions: ClassVar[dict[str, str]] = {
+        "model": "the MuJoCo adapter's MJCF and MjModel, moved to JAX with mjx.put_model/put_data",
+        "quaternion order": "(w, x, y, z), Hamilton, body -> world (qpos[3:7]); no reorder",
+        "position": "qpos[0:3]: body origin in world = COM",
+        "angular velocity frame": "BODY frame in qvel[3:6]; converted w_world = R w_body",
+        "linear velocity frame": "world (qvel[0:3])",
+        "inertia input": "as the MuJoCo adapter (fullinertia, diagonalised by the C compiler)",
+        "external loads": "xfrc_applied[body] = (force, torque about the COM), world, written "
+                          "inside the scan before every mjx.step",
+        "stepping": f"jax.lax.scan of mjx.step under jax.jit, {CHUNK_STEPS} steps per call",
+        "precision": "float32 or float64 via the thread-local jax.enable_x64 scope; the "
+                     "process-wide jax_enable_x64 is left alone",
+        "instability": "no warnings counter and no auto-reset: detected as non-finite state",
+        "velocity clamp": "none",
+        "damping": "none (the MuJoCo adapter's model)",
+        "sleeping": "none",
+    }
+
+    # --- capabilities --------------------------------------------------------------------------
+    @classmethod
+    def engine_version(cls) -> str:
+        try:
+            mjx_version = importlib.metadata.version("mujoco-mjx")
+        except importlib.metadata.PackageNotFoundError:
+            mjx_version = "unknown"
+        return f"{mjx_version} (mujoco {mujoco.__version__}, jax {jax.__version__})"
+
+    @classmethod
+    def offered_integrators(cls) -> tuple[str, ...]:
+        return tuple(n for n, e in _INTEGRATOR_ENUM.items() if hasattr(mjx.IntegratorType, e))
+
+    # --- world ---------------------------------------------------------------------------------
+    def build(self) -> None:
+        self._dtype = _DTYPE.get(self.precision)
+        x64_default = _current_x64()
+        with _x64(self.precision == "float64"):
+            self._m, self._d, settings = _build(self.problem, self.dt, self.integrator,
+                                                self.precision, x64_default)
+        self.settings.update(settings)
+        self._row = np.zeros(_ROW, dtype=self._dtype)  # the next step's loads (step-by-step use)
+        self.compile_time_s = 0.0  # tracing + compiling spent by this adapter, s
+        self.step_time_s = 0.0     # stepping, s (excludes compiling)
+
+    # --- step-by-step use (the harness uses simulate) ----------------------------------------------
+    def apply_loads(self, k: int) -> None:
+        self._row = _load_rows(self.problem, self.dt, k, k + 1, self._dtype)[0]
+
+    def step(self) -> None:
+        with _x64(self.precision == "float64"):
+            row = jnp.asarray(self._row)
+            fn, spent = _compiled("step", _step_jit, self.precision, (self._m, self._d, row))
+            self.compile_time_s += spent
+            t0 = time.perf_counter()
+            self._d = fn(self._m, self._d, row)
+            self._d.qpos.block_until_ready()
+            self.step_time_s += time.perf_counter() - t0
+        self._row = np.zeros(_ROW, dtype=self._dtype)
+
+    def read_state(self):
+        qpos = np.asarray(self._d.qpos, dtype=np.float64)
+        qvel = np.asarray(self._d.qvel, dtype=np.float64)
+        tr = _trajectory(qpos[None], qvel[None], self.dt)
+        return (tr.position[0], tr.quaternion_wxyz[0], tr.linear_velocity[0],
+                tr.angular_velocity[0])
+
+    # --- whole runs ------------------------------------------------------------------------------
+    def simulate(self, steps: int) -> Trajectory:
+        """``steps`` steps from the current state (t = (k0 + i) dt, k0 = self.k) as
+        ceil(steps / CHUNK_STEPS) compiled scans.  MJX signals no instability: a blow-up comes
+        back as computed (non-finite samples), for the harness to detect."""
+        dtype, k0 = self._dtype, self.k
+        Q = np.empty((steps + 1, 7))   # [x (3) m world, q (4) wxyz body -> world]
+        V = np.empty((steps + 1, 6))   # [v (3) m/s world, w (3) rad/s BODY]
+        Q[0] = np.asarray(self._d.qpos, dtype=np.float64)
+        V[0] = np.asarray(self._d.qvel, dtype=np.float64)
+        m, d = self._m, self._d
+        with _x64(self.precision == "float64"):
+            i = 0
+            while i < steps:
+                n = min(CHUNK_STEPS, steps - i)
+                rows = np.zeros((CHUNK_STEPS, _ROW), dtype=dtype)
+                rows[:n] = _load_rows(self.problem, self.dt, k0 + i, k0 + i + n, dtype)
+                rows_j = jnp.asarray(rows)
+                fn, spent = _compiled("chunk", _chunk_jit, self.precision, (m, d, rows_j))
+                self.compile_time_s += spent
+                t0 = time.perf_counter()
+                d_next, Qc, Vc = fn(m, d, rows_j)
+                Qc, Vc = np.asarray(Qc), np.asarray(Vc)
+                self.step_time_s += time.perf_counter() - t0
+                if Qc.dtype != dtype:
+                    raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {self.precision}")
+                Q[i + 1:i + 1 + n], V[i + 1:i + 1 + n] = Qc[:n], Vc[:n]
+                i += n
+                if n == CHUNK_STEPS:
+                    d = d_next
+                else:  # a padded chunk ends past the run: keep the state at its last real step
+                    d = d.replace(qpos=jnp.asarray(Qc[n - 1]), qvel=jnp.asarray(Vc[n - 1]),
+                                  time=d.time + n * d.time.dtype.type(self.dt))
+        self._d = d
+        self.k = k0 + steps
+        tr = _trajectory(Q, V, self.dt)
+        return replace(tr, t=(k0 + np.arange(steps + 1)) * self.dt)
+
+    def close(self) -> None:
+        self._m = self._d = None
+
+
+# --- batched runs ---------------------------------------------------------------------------------
+
+@dataclass
+class BatchRun:
+    """Result of :func:`simulate_batch`.
+
+    trajectories : one canonical :class:`Trajectory` per problem (steps + 1 samples, float64;
+        NaN/inf after a body's blow-up are kept as computed).
+    diverged_at_s : per problem, the time of the first non-finite sample, or None.
+    compile_time_s : tracing + compiling, s (0.0 when the process had it compiled).
+    step_time_s : stepping the whole batch, s.
+    engine_settings : per problem, the engine defaults changed (as ``Adapter.settings``).
+    """
+
+    trajectories: list[Trajectory]
+    diverged_at_s: list[float | None]
+    compile_time_s: float
+    step_time_s: float
+    engine_settings: list[dict] = field(default_factory=list)
+
+
+def _stack_models(models):
+    """(stacked model, in_axes tree): leaves equal across the batch stay unbatched (None)."""
+    leaves0, treedef = jax.tree_util.tree_flatten(models[0])
+    all_leaves = [leaves0]
+    for mx in models[1:]:
+        leaves, td = jax.tree_util.tree_flatten(mx)
+        if td != treedef:
+            raise ValueError("simulate_batch: the problems' MJX models differ in structure")
+        all_leaves.append(leaves)
+    out, axes = [], []
+    for i, a in enumerate(leaves0):
+        column = [lv[i] for lv in all_leaves]
+        if all(np.array_equal(np.asarray(a), np.asarray(c)) for c in column[1:]):
+            out.append(a)
+            axes.append(None)
+        else:
+            out.append(jnp.stack(column))
+            axes.append(0)
+    return jax.tree_util.tree_unflatten(treedef, out), jax.tree_util.tree_unflatten(treedef, axes)
+
+
+_BATCH_JIT: dict = {}
+
+
+def simulate_batch(problems: list[Problem], dt: float, steps: int, integrator: str = "Euler",
+                   precision: str = "float64") -> BatchRun:
+    """Run many free bodies as one ``jax.vmap``-ped batch of MJX scans.
+
+    problems : Problems of the same structure (any mass, inertia, initial state, gravity and
+        loads; all single free bodies are).  dt : s, shared.  steps : number of steps, shared.
+    integrator, precision : as for :class:`MjxAdapter`.
+    Each body's trajectory is what :meth:`MjxAdapter.simulate` gives for it alone (the same
+    compiled step, vmapped).  A body that blows up does not stop the batch: its samples turn
+    non-finite and ``diverged_at_s`` says when.
+    """
+    if not problems:
+        return BatchRun([], [], 0.0, 0.0, [])
+    dtype = _DTYPE.get(precision)
+    x64_default = _current_x64()
+    with _x64(precision == "float64"):
+        built = [_build(pb, dt, integrator, precision, x64_default) for pb in problems]
+        m, m_axes = _stack_models([b[0] for b in built])
+        d = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[b[1] for b in built])
+        axes_key = tuple(a is None for a in jax.tree_util.tree_leaves(
+            m_axes, is_leaf=lambda x: x is None))
+        fn_jit = _BATCH_JIT.get(axes_key)
+        if fn_jit is None:
+            fn_jit = _BATCH_JIT[axes_key] = jax.jit(jax.vmap(_chunk, in_axes=(m_axes, 0, 0)))
+        B = len(problems)
+        Q = np.empty((B, steps + 1, 7))
+        V = np.empty((B, steps + 1, 6))
+        Q[:, 0] = np.asarray(d.qpos, dtype=np.float64)
+        V[:, 0] = np.asarray(d.qvel, dtype=np.float64)
+        compile_s = step_s = 0.0
+        k = 0
+        while k < steps:
+            n = min(CHUNK_STEPS, steps - k)
+            rows = np.zeros((B, CHUNK_STEPS, _ROW), dtype=dtype)
+            for i, pb in enumerate(problems):
+                rows[i, :n] = _load_rows(pb, dt, k, k + n, dtype)
+            rows_j = jnp.asarray(rows)
+            fn, spent = _compiled("batch", fn_jit, precision, (m, d, rows_j), extra=axes_key)
+            compile_s += spent
+            t0 = time.perf_counter()
+            d, Qc, Vc = fn(m, d, rows_j)
+            Qc, Vc = np.asarray(Qc), np.asarray(Vc)
+            step_s += time.perf_counter() - t0
+            if Qc.dtype != dtype:
+                raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {precision}")
+            Q[:, k + 1:k + 1 + n], V[:, k + 1:k + 1 + n] = Qc[:, :n], Vc[:, :n]
+            k += n
+    trajectories, diverged = [], []
+    for i in range(B):
+        bad = _first_bad(Q[i], V[i])
+        diverged.append(None if bad is None else bad * dt)
+        trajectories.append(_trajectory(Q[i], V[i], dt))
+    return BatchRun(trajectories, diverged, compile_s, step_s, [b[2] for b in built])
