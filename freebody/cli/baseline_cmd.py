@@ -1,0 +1,22 @@
+"""``freebody baseline DIR --to FILE``: store a run's results (without trajectories) as a baseline."""
+from __future__ import annotations
+
+ORDER = 40
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("baseline", help="store a run's results as a regression baseline",
+                       description="Store DIR/results.json (or a results.json) without its trajectory files, "
+                                   "with the engine versions, as a baseline for freebody compare.")
+    p.add_argument("dir", metavar="DIR", help="a run directory or a results.json")
+    p.add_argument("--to", required=True, metavar="FILE", help="the baseline file to write (JSON)")
+    p.add_argument("--force", action="store_true", help="replace FILE if it exists")
+
+
+def run(args) -> int:
+    from ..baseline import store_baseline
+
+    base = store_baseline(args.dir, args.to, force=args.force)
+    engines = ", ".join(f"{e} {v or 'not installed'}" for e, v in (base.get("engines") or {}).items())
+    print(f"baseline: {args.to} ({len(base['runs'])} runs; engines: {engines or 'none'})")
+    return 0

@@ -1,0 +1,34 @@
+"""``freebody report DIR``: re-render report.md and report.html from results.json and the
+trajectory files, without running anything."""
+from __future__ import annotations
+
+ORDER = 30
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("report", help="re-render report.md and report.html of a run directory",
+                       description="Re-render DIR/report.md and DIR/report.html from DIR/results.json and "
+                                   "the trajectory files under DIR, without re-running anything.")
+    p.add_argument("dir", metavar="DIR", help="a run directory (holding results.json)")
+    p.add_argument("--case", action="append", metavar="PATH", default=[],
+                   help="a case TOML file (repeatable): its mass and inertia, for results.json files "
+                        "that do not describe their cases")
+    p.add_argument("--markdown-only", action="store_true", help="write report.md only (no plots)")
+
+
+def run(args) -> int:
+    from pathlib import Path
+
+    from ..casefile import load_case
+    from ..errors import InputError
+    from ..report import write_reports
+    from ..results import load_results
+
+    out_dir = Path(args.dir)
+    if not out_dir.is_dir():
+        raise InputError(f"{out_dir}: not a directory (expected a run directory holding results.json)")
+    doc = load_results(out_dir)
+    problems = {pb.name: pb for pb in (load_case(p) for p in args.case)}
+    for path in write_reports(out_dir, doc, problems, html=not args.markdown_only):
+        print(f"report: {path}")
+    return 0

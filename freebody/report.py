@@ -1,0 +1,102 @@
+"""Reports of a run directory: report.md (tables) and report.html (tables and embedded plots).
+
+``freebody run`` calls :func:`finish_run` (adds the fitted orders and the cases' mass properties
+to results.json, then writes the reports); ``freebody report DIR`` calls :func:`write_reports`,
+which re-renders both from results.json and the trajectory files without running anything.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from . import report_data as rd
+from .convergence import fit_orders
+from .results import write_json_atomic
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write text via a temporary file in the same directory and a rename."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def augment(doc: dict, problems: dict | None = None) -> dict:
+    """The results document with ``"convergence"`` (see :mod:`freebody.convergence`) and ``"cases"``
+    (name -> description, truth, mass kg, inertia kg m^2 (3x3, COM, body frame), gravity m/s^2
+    (world), ...: what a report needs to recompute L and E without the case file)."""
+    from .reference_impl.truth import truth_kind
+
+    out = dict(doc)
+    out["convergence"] = fit_orders(doc.get("runs") or [])
+    cases = dict(doc.get("cases") or {})
+    for name, pb in (problems or {}).items():
+        cases[name] = rd.case_record(pb, truth_kind(pb))
+    if cases:
+        out["cases"] = cases
+    return out
+
+
+def convergence_of(doc: dict) -> list[dict]:
+    """results.json's ``"convergence"`` list, or the fit of its runs when it has none."""
+    conv = doc.get("convergence")
+    return conv if isinstance(conv, list) else fit_orders(doc.get("runs") or [])
+
+
+def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None = None,
+                  html: bool = True) -> list[Path]:
+    """Write ``out_dir/report.md`` and (unless ``html`` is False) ``out_dir/report.html``.
+
+    doc : the results document (default: ``out_dir/results.json``).
+    problems : case name -> Problem, for cases that results.json does not describe.
+    Returns the paths written.
+    """
+    from .report_md import render_markdown
+
+    out_dir = Path(out_dir)
+    if doc is None:
+        from .results import load_results
+
+        doc = load_results(out_dir)
+    conv = convergence_of(doc)
+    runs = doc.get("runs") or []
+    physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}
+    md_path = out_dir / "report.md"
+    write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir))
+    written = [md_path]
+    if html:
+        from . import report_plots as plots
+        from .report_html import render_html
+
+        figures: dict = {"heatmap": plots.heatmap(runs), "convergence": plots.convergence(runs, conv),
+                         "speed": plots.speed_accuracy(runs)}
+        notes: dict = {}
+        all_labels = rd.labels(runs)
+        for case, case_runs in rd.by_case(runs).items():
+            for dt in rd.dts(case_runs):
+                at_dt = [r for r in case_runs if float(r["dt"]) == dt]
+                figures[(case, dt)], n = plots.case_dt(case, dt, at_dt, physics[case], out_dir, all_labels)
+                notes.setdefault(case, []).extend(n)
+        html_path = out_dir / "report.html"
+        write_text_atomic(html_path, render_html(doc, conv, physics, figures, notes, out_dir))
+        written.append(html_path)
+    return written
+
+
+def finish_run(out_dir: Path, doc: dict, problems: dict, report: bool = True) -> tuple[dict, list[Path]]:
+    """After ``freebody run``: re-write results.json (atomically) with the fitted orders and the
+    cases, then write the reports.  Returns (the document, the report paths written)."""
+    doc = augment(doc, problems)
+    write_json_atomic(Path(out_dir) / "results.json", doc)
+    paths = write_reports(out_dir, doc, problems) if report else []
+    return doc, paths
+

@@ -1,0 +1,308 @@
+"""The numbers a report shows, prepared from a results.json document (no plotting, no markup).
+
+Everything here tolerates any run of any engine in any status: a value that is missing, null or
+non-finite becomes None (shown as "-"), never a NaN in a table or a plot.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .reference_impl.conventions import angular_momentum, kinetic_energy, potential_energy
+from .reference_impl.problem import Body
+from .reference_impl.rotations import geodesic_angle
+from .summary import run_label
+
+STATUS_ORDER = ("failed", "diverged", "skipped", "ok")  # worst first
+
+
+def number(x) -> float | None:
+    """A finite float, or None for anything else (None, NaN, inf, a string, a bool)."""
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.floating, np.integer)):
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def num(x, spec: str = ".3e") -> str:
+    """A number in a fixed format (so text survives last-digit noise), '-' when not a finite number."""
+    x = number(x)
+    return "-" if x is None else format(x, spec)
+
+
+def label(run: dict) -> str:
+    """engine/integrator[/precision]: one engine run across cases and time steps."""
+    return run_label({**run, "precision": run.get("precision") or "float64"})
+
+
+def metric(run: dict, key: str) -> float | None:
+    return number((run.get("metrics") or {}).get(key))
+
+
+def simulated_s(run: dict) -> float | None:
+    """Simulated time of a run, s: steps * dt."""
+    steps, dt = number(run.get("steps")), number(run.get("dt"))
+    return steps * dt if steps and dt else None
+
+
+def wall_per_simulated_s(run: dict) -> float | None:
+    """Wall-clock seconds per simulated second (lower is faster); None for a run that did not run."""
+    if run.get("status") in ("skipped", "failed"):
+        return None
+    wall, sim = number(run.get("wall_time_s")), simulated_s(run)
+    return wall / sim if wall is not None and wall > 0 and sim else None
+
+
+def reproduces(run: dict) -> str:
+    """The reference map this engine run reproduces ('' for the reference engine / no check)."""
+    m = run.get("matches_reference")
+    if not isinstance(m, dict):
+        return ""
+    if m.get("integrator"):
+        return f"{m['integrator']} ({num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+    if m.get("closest"):
+        return f"none (closest {m['closest']}, {num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+    return "none"
+
+
+def by_case(runs: list[dict]) -> dict[str, list[dict]]:
+    """Runs grouped by case, cases and runs in their order of appearance."""
+    out: dict[str, list[dict]] = {}
+    for r in runs:
+        out.setdefault(r["case"], []).append(r)
+    return out
+
+
+def labels(runs: list[dict]) -> list[str]:
+    """Distinct engine-run labels in order of appearance."""
+    return list(dict.fromkeys(label(r) for r in runs))
+
+
+def dts(runs: list[dict]) -> list[float]:
+    """Distinct time steps, descending (coarsest first)."""
+    return sorted({float(r["dt"]) for r in runs if number(r.get("dt"))}, reverse=True)
+
+
+def status_counts(runs: list[dict]) -> dict[str, int]:
+    return {s: sum(r.get("status") == s for r in runs) for s in ("ok", "diverged", "failed", "skipped")}
+
+
+# --- the body of a case (for L and E from states) -------------------------------------------------
+
+@dataclass(frozen=True)
+class CasePhysics:
+    """What a report needs of a case to compute L and E: the subset of a Problem that
+    :func:`freebody.metrics.series` reads (``body``, ``gravity``) plus its description.
+
+    body : Body (mass kg, I_body (3, 3) kg m^2, COM, body frame).  gravity : (3,) m/s^2, world.
+    """
+
+    name: str
+    description: str
+    truth: str
+    body: Body
+    gravity: np.ndarray
+
+
+def case_record(problem, truth: str) -> dict:
+    """The results.json ``"cases"`` entry of a Problem: enough to recompute L and E from states."""
+    return {"description": problem.description, "truth": truth, "mass": float(problem.body.mass),
+            "inertia": np.asarray(problem.body.I_body, dtype=float).tolist(),
+            "gravity": np.asarray(problem.gravity, dtype=float).tolist(),
+            "torque_free": bool(problem.torque_free), "dts": list(problem.dts),
+            "duration": problem.duration, "duration_steps": problem.duration_steps}
+
+
+def case_physics(doc: dict, case: str, problems: dict | None = None) -> CasePhysics | None:
+    """The case's body and gravity: from ``problems`` (name -> Problem), else results.json's
+    ``"cases"``, else the bundled case of that name; None when none of these knows the case."""
+    if problems and case in problems:
+        pb = problems[case]
+        from .reference_impl.truth import truth_kind
+
+        return CasePhysics(case, pb.description, truth_kind(pb), pb.body, np.asarray(pb.gravity, float))
+    rec = (doc.get("cases") or {}).get(case)
+    if isinstance(rec, dict):
+        try:
+            body = Body(float(rec["mass"]), np.asarray(rec["inertia"], dtype=float))
+            g = np.asarray(rec.get("gravity", [0.0, 0.0, 0.0]), dtype=float).reshape(3)
+            if body.mass > 0 and np.all(np.isfinite(body.I_body)) and np.all(np.isfinite(g)):
+                return CasePhysics(case, str(rec.get("description", "")), str(rec.get("truth", "")), body, g)
+        except (KeyError, TypeError, ValueError):
+            pass
+    from .casefile import bundled_case_paths, load_case
+
+    if case in bundled_case_paths():
+        from .reference_impl.truth import truth_kind
+
+        pb = load_case(case)
+        return CasePhysics(case, pb.description, truth_kind(pb), pb.body, np.asarray(pb.gravity, float))
+    return None
+
+
+# --- engine-vs-engine at the end ----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Pair:
+    """Two engine runs of one case at one dt, compared at their final state.
+
+    angle_rad : geodesic angle between the final orientations, rad.
+    dL_rel : |L_a - L_b| / mean(|L_a|, |L_b|) (world, about the COM), or None.
+    dE_rel : |E_a - E_b| / mean(KE_a, KE_b), or None.
+    """
+
+    dt: float
+    a: str
+    b: str
+    angle_rad: float | None
+    dL_rel: float | None
+    dE_rel: float | None
+
+
+def _final(run: dict, out_dir: Path | None) -> dict | None:
+    """The final state of an ok run: its results.json final_state, else the last trajectory sample."""
+    if run.get("status") != "ok":
+        return None
+    fs = run.get("final_state")
+    if isinstance(fs, dict) and fs.get("quaternion_wxyz") is not None:
+        return fs
+    if out_dir is not None and run.get("trajectory"):
+        from .results import load_trajectory
+
+        try:
+            tr, _ = load_trajectory(Path(out_dir) / run["trajectory"])
+            return tr.state(-1).as_dict()
+        except (OSError, KeyError, ValueError, IndexError):
+            return None
+    return None
+
+
+def _state_arrays(fs: dict) -> tuple[np.ndarray, ...] | None:
+    try:
+        arrs = tuple(np.asarray(fs[k], dtype=float) for k in
+                     ("quaternion_wxyz", "angular_velocity", "linear_velocity", "position"))
+    except (KeyError, TypeError, ValueError):
+        return None
+    if any(a.shape != s for a, s in zip(arrs, ((4,), (3,), (3,), (3,)))) or not all(
+            np.all(np.isfinite(a)) for a in arrs):
+        return None
+    return arrs
+
+
+def pair_runs(runs: list[dict]) -> list[tuple[dict, dict]]:
+    """Pairs of runs of different engines at the same dt and precision.  The reference engine is
+    left out when two or more other engines ran (its relation to each engine is the
+    'reproduces' column)."""
+    engines = {r["engine"] for r in runs if r.get("status") == "ok"}
+    skip_ref = len(engines - {"reference"}) >= 2
+    chosen = [r for r in runs if not (skip_ref and r["engine"] == "reference")]
+    out = []
+    for i, a in enumerate(chosen):
+        for b in chosen[i + 1:]:
+            if (a["engine"] != b["engine"] and a["dt"] == b["dt"]
+                    and (a.get("precision") or "float64") == (b.get("precision") or "float64")):
+                out.append((a, b))
+    return out
+
+
+def pairwise(runs: list[dict], physics: CasePhysics | None, out_dir: Path | None = None) -> list[Pair]:
+    """Engine-vs-engine differences at the end of one case's runs, largest angle first
+    (pairs whose angle is undefined last); only ok runs take part."""
+    finals = {id(r): _final(r, out_dir) for r in runs}
+    rows = []
+    for a, b in pair_runs([r for r in runs if finals[id(r)] is not None]):
+        sa, sb = _state_arrays(finals[id(a)]), _state_arrays(finals[id(b)])
+        if sa is None or sb is None:
+            rows.append(Pair(float(a["dt"]), label(a), label(b), None, None, None))
+            continue
+        angle = number(geodesic_angle(sa[0], sb[0]))
+        dL = dE = None
+        if physics is not None:
+            M, I_b = physics.body.mass, physics.body.I_body
+            La, Lb = angular_momentum(I_b, sa[0], sa[1]), angular_momentum(I_b, sb[0], sb[1])
+            scale = 0.5 * (np.linalg.norm(La) + np.linalg.norm(Lb))
+            dL = number(np.linalg.norm(La - Lb) / scale) if scale > 0 else None
+            ka, kb = kinetic_energy(M, I_b, sa[0], sa[2], sa[1]), kinetic_energy(M, I_b, sb[0], sb[2], sb[1])
+            Ea = ka + potential_energy(M, physics.gravity, sa[3])
+            Eb = kb + potential_energy(M, physics.gravity, sb[3])
+            kscale = 0.5 * (ka + kb)
+            dE = number(abs(Ea - Eb) / kscale) if kscale > 0 else None
+        rows.append(Pair(float(a["dt"]), label(a), label(b), angle, dL, dE))
+    rows.sort(key=lambda p: (-p.dt, p.angle_rad is None, -(p.angle_rad or 0.0), p.a, p.b))
+    return rows
+
+
+# --- front page ---------------------------------------------------------------------------------
+
+def worst_cells(runs: list[dict]) -> dict[tuple[str, str], tuple[str, float | None]]:
+    """(case, label) -> (worst status, worst orientation_error_max_rad over the dts of ok runs).
+
+    The status is the worst of the cell's runs (failed > diverged > skipped > ok).
+    """
+    cells: dict[tuple[str, str], list[dict]] = {}
+    for r in runs:
+        cells.setdefault((r["case"], label(r)), []).append(r)
+    out = {}
+    for key, rs in cells.items():
+        status = min((r.get("status", "failed") for r in rs),
+                     key=lambda s: STATUS_ORDER.index(s) if s in STATUS_ORDER else 0)
+        vals = [metric(r, "orientation_error_max_rad") for r in rs if r.get("status") == "ok"]
+        vals = [v for v in vals if v is not None]
+        out[key] = (status, max(vals) if vals else None)
+    return out
+
+
+def _show(v) -> str:
+    if isinstance(v, float):
+        return format(v, "g") if math.isfinite(v) else "-"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_show(x) for x in v) + "]"
+    return str(v)
+
+
+def settings_forced(runs: list[dict]) -> list[tuple[str, str, str, str]]:
+    """(engine, setting, engine default, value(s) set) for every setting an adapter changed.
+
+    ``engine_settings`` entries are ``{key: {"default": d, "set": v}}``; other shapes are shown as
+    they are.  Distinct values across runs are joined with ', '.
+    """
+    table: dict[tuple[str, str], tuple[dict, dict]] = {}
+    for r in runs:
+        for key, val in sorted((r.get("engine_settings") or {}).items()):
+            defaults, sets = table.setdefault((r["engine"], key), ({}, {}))
+            if isinstance(val, dict) and ("default" in val or "set" in val):
+                defaults[_show(val.get("default"))] = None
+                sets[_show(val.get("set"))] = None
+            else:
+                sets[_show(val)] = None
+    return [(e, k, ", ".join(d) or "-", ", ".join(s) or "-") for (e, k), (d, s) in table.items()]
+
+
+def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, int, float | None]]:
+    """(engine run, reference map reproduced or 'none (closest X)', number of runs, max difference
+    rad) for every non-reference engine run whose scheme was identified."""
+    acc: dict[tuple[str, str], list] = {}
+    for r in runs:
+        m = r.get("matches_reference")
+        if not isinstance(m, dict):
+            continue
+        what = m.get("integrator") or (f"none (closest {m['closest']})" if m.get("closest") else "none")
+        slot = acc.setdefault((label(r), what), [0, None])
+        slot[0] += 1
+        d = number(m.get("max_orientation_diff_rad"))
+        if d is not None:
+            slot[1] = d if slot[1] is None else max(slot[1], d)
+    return [(lab, what, n, d) for (lab, what), (n, d) in acc.items()]
+
+
+def engine_versions(doc: dict) -> list[tuple[str, str, int]]:
+    """(engine, version or 'not installed', number of runs) for every engine of the document."""
+    runs = doc.get("runs") or []
+    versions = dict(doc.get("engines") or {})
+    for r in runs:
+        versions.setdefault(r["engine"], r.get("engine_version"))
+    return [(e, str(v) if v else "not installed", sum(r["engine"] == e for r in runs))
+            for e, v in versions.items()]

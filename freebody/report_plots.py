@@ -1,0 +1,345 @@
+"""The report's figures, drawn with matplotlib's object API on the Agg canvas, returned as PNG bytes.
+
+No pyplot (no global state, no GUI backend).  Only finite values are drawn: a NaN, an inf or (on a
+log axis) a non-positive value is left out, never plotted as a number.  Each figure is small and
+few per case (one 4-panel figure per case and dt), so a 150-run report renders in seconds.
+"""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+
+from . import report_data as rd
+from .convergence import FITTED_METRICS
+
+DPI = 90
+MAX_POINTS = 1500  # samples drawn per line: more is invisible at this size, and slow
+LOG_PANEL_TOP = 1e3  # error panels stop here: beyond, a run has blown up (its status says so)
+STATUS_COLOURS = {"diverged": "#222222", "failed": "#b2182b", "skipped": "#d9d9d9"}
+STATUS_TEXT = {"diverged": "div", "failed": "fail", "skipped": "skip"}
+TRUTH_STYLE = dict(color="black", linestyle="--", linewidth=1.2)
+
+
+def _figure(width_in: float, height_in: float):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(width_in, height_in), dpi=DPI)
+
+
+def png_bytes(fig) -> bytes:
+    """The figure as PNG (no software metadata, so the bytes depend on the data only)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=DPI, metadata={"Software": None})
+    return buf.getvalue()
+
+
+def colours(labels: list[str]) -> dict[str, tuple]:
+    """A fixed colour per engine-run label (tab10 up to 10 labels, tab20 up to 20, then cycling)."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10" if len(labels) <= 10 else "tab20"]
+    n = cmap.N
+    return {lab: cmap(i % n) for i, lab in enumerate(labels)}
+
+
+def linestyle(i: int, n_colours: int) -> str:
+    return ("-", "--", ":", "-.")[(i // n_colours) % 4]
+
+
+def _finite_xy(x, y, log_y: bool = False, log_x: bool = False):
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    if log_y:
+        ok &= y > 0
+    if log_x:
+        ok &= x > 0
+    return x[ok], y[ok]
+
+
+def _decimate(n: int) -> slice:
+    return slice(None, None, max(1, int(np.ceil(n / MAX_POINTS))))
+
+
+def _legend_in(n: int, ncol: int = 4) -> float:
+    """Height in inches of a figure legend of n entries in ncol columns at fontsize 7."""
+    return 0.17 * ((n + ncol - 1) // ncol) + 0.1
+
+
+def _log_axes(ax, x: bool = False, y: bool = False) -> None:
+    """Log scale with labels on the decades only (minor tick labels are slow and crowded)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    for on, axis, setter in ((x, ax.xaxis, ax.set_xscale), (y, ax.yaxis, ax.set_yscale)):
+        if on:
+            setter("log")
+            axis.set_major_locator(LogLocator(base=10, numticks=8))
+            axis.set_major_formatter(FuncFormatter(_decade))  # plain text: mathtext is slow
+            axis.set_minor_formatter(NullFormatter())
+
+
+def _decade(v: float, _pos=None) -> str:
+    """A log-axis tick label: 1e-4 for a decade, %g otherwise."""
+    if not (v > 0 and np.isfinite(v)):
+        return ""
+    e = np.log10(v)
+    return f"1e{int(round(e))}" if abs(e - round(e)) < 1e-9 else f"{v:g}"
+
+
+def _empty(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, fontsize=8, color="0.4")
+
+
+# --- front page -----------------------------------------------------------------------------------
+
+def heatmap(runs: list[dict]) -> bytes | None:
+    """Cases (rows) x engine runs (columns), coloured by the worst orientation error (log scale);
+    diverged, failed and skipped cells in their own colours with a word."""
+    from matplotlib.colors import LogNorm
+
+    cases = list(rd.by_case(runs))
+    labs = rd.labels(runs)
+    if not cases or not labs:
+        return None
+    cells = rd.worst_cells(runs)
+    data = np.full((len(cases), len(labs)), np.nan)
+    for (c, lab), (status, v) in cells.items():
+        if status == "ok" and v is not None:
+            data[cases.index(c), labs.index(lab)] = max(v, 1e-16)
+    label_in = 0.045 * max(map(len, labs)) * 0.87 + 0.3  # rotated tick labels, inches
+    case_in = 0.07 * max(map(len, cases)) + 0.3
+    w, h = max(5.0, case_in + 1.6 + 0.62 * len(labs)), 0.8 + 0.42 * len(cases) + label_in
+    fig = _figure(w, h)
+    ax = fig.add_axes((case_in / w, label_in / h, 1 - (case_in + 1.5) / w, 1 - (label_in + 0.45) / h))
+    finite = data[np.isfinite(data)]
+    cmap = None
+    if finite.size:
+        from matplotlib import colormaps
+
+        cmap = colormaps["viridis"].with_extremes(bad="white")
+        lo, hi = float(finite.min()), float(finite.max())
+        norm = LogNorm(vmin=lo, vmax=hi if hi > lo else lo * 10)
+        im = ax.imshow(np.ma.masked_invalid(data), cmap=cmap, norm=norm, aspect="auto")
+        cax = fig.add_axes((1 - 1.3 / w, label_in / h, 0.15 / w, 1 - (label_in + 0.45) / h))
+        from matplotlib.ticker import FuncFormatter, NullFormatter
+
+        fig.colorbar(im, cax=cax).set_label("orientation error max (rad)", fontsize=8)
+        cax.yaxis.set_major_formatter(FuncFormatter(_decade))
+        cax.yaxis.set_minor_formatter(NullFormatter())
+        cax.tick_params(labelsize=7)
+    else:
+        ax.imshow(np.zeros_like(data), cmap="Greys", vmin=0, vmax=1, aspect="auto")
+    for (c, lab), (status, v) in cells.items():
+        i, j = cases.index(c), labs.index(lab)
+        if status != "ok":
+            ax.add_patch(_cell_patch(j, i, STATUS_COLOURS.get(status, "#ff00ff")))
+            ax.text(j, i, STATUS_TEXT.get(status, status), ha="center", va="center", fontsize=7,
+                    color="white" if status in ("diverged", "failed") else "black")
+        elif v is not None:
+            rgba = cmap(norm(max(v, 1e-16))) if cmap is not None else (1, 1, 1, 1)
+            light = 0.299 * rgba[0] + 0.587 * rgba[1] + 0.114 * rgba[2] > 0.5
+            ax.text(j, i, format(v, ".0e"), ha="center", va="center", fontsize=6.5,
+                    color="black" if light else "white")
+    ax.set_xticks(range(len(labs)), labs, rotation=60, ha="right", fontsize=7)
+    ax.set_yticks(range(len(cases)), cases, fontsize=8)
+    ax.set_title("worst orientation error over time and time steps (rad); "
+                 "div = diverged, fail = failed, skip = skipped", fontsize=9, loc="left")
+    return png_bytes(fig)
+
+
+def _cell_patch(x: float, y: float, colour: str):
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((x - 0.5, y - 0.5), 1, 1, facecolor=colour, edgecolor="white", linewidth=0.5)
+
+
+def convergence(runs: list[dict], entries: list[dict]) -> bytes | None:
+    """Per case with >= 2 time steps: orientation and energy error vs dt (log-log), one line per
+    engine run, the fitted order in the legend (or 'sat.' where the errors saturate)."""
+    from matplotlib.ticker import NullLocator
+
+    cases = [c for c, rs in rd.by_case(runs).items() if len(rd.dts(rs)) >= 2]
+    if not cases:
+        return None
+    labs = rd.labels(runs)
+    col = colours(labs)
+    fits = {(e["case"], rd.label(e), e["metric"]): e for e in entries}
+    fig = _figure(11.0, 3.0 * len(cases) + 0.4)
+    fig.subplots_adjust(left=0.07, right=0.99, bottom=0.6 / fig.get_figheight(), top=1 - 0.35 / fig.get_figheight(),
+                        wspace=0.3, hspace=0.45)
+    for row, case in enumerate(cases):
+        case_runs = rd.by_case(runs)[case]
+        handles = []
+        axes = [fig.add_subplot(len(cases), 3, 3 * row + k + 1) for k in range(2)]
+        for lab in rd.labels(case_runs):
+            mine = sorted((r for r in case_runs if rd.label(r) == lab), key=lambda r: float(r["dt"]))
+            ls = linestyle(labs.index(lab), 10 if len(labs) <= 10 else 20)
+            orders = []
+            for ax, m in zip(axes, FITTED_METRICS):
+                x, y = _finite_xy([r["dt"] for r in mine],
+                                  [rd.metric(r, m) if r.get("status") == "ok" else None for r in mine],
+                                  log_y=True, log_x=True)
+                h = ax.plot(x, y, marker="o", markersize=3, color=col[lab], linestyle=ls, linewidth=1)[0]
+                e = fits.get((case, lab, m))
+                if e and e.get("order") is not None and e.get("log10_coefficient") is not None:
+                    fd = np.asarray(e["fitted_dts"], dtype=float)
+                    ax.plot(fd, 10 ** e["log10_coefficient"] * fd ** e["order"], color=col[lab],
+                            linewidth=0.6, alpha=0.6, linestyle=":")
+                orders.append("-" if not e else ("sat." if e.get("saturated") else rd.num(e.get("order"), ".2f")))
+                if m == FITTED_METRICS[0]:
+                    first = h
+            handles.append((first, f"{lab}  p = {orders[0]} / {orders[1]}"))
+        for ax, m in zip(axes, FITTED_METRICS):
+            _log_axes(ax, x=True, y=True)
+            case_dts = rd.dts(case_runs)
+            ax.set_xticks(case_dts, [f"{d:g}" for d in case_dts])  # the dts themselves: often < 1 decade
+            ax.xaxis.set_minor_locator(NullLocator())
+            ax.set_xlabel("dt (s)", fontsize=8)
+            ax.set_ylabel("orientation error max (rad)" if m == FITTED_METRICS[0] else "energy error max (rel)",
+                          fontsize=8)
+            ax.tick_params(labelsize=7)
+            ax.grid(True, which="major", alpha=0.3)
+            ax.set_title(case, fontsize=9)
+            if not ax.lines or not any(len(ln.get_xdata()) for ln in ax.lines):
+                _empty(ax, "no ok run")
+        lax = fig.add_subplot(len(cases), 3, 3 * row + 3)
+        lax.axis("off")
+        lax.legend([h for h, _ in handles], [t for _, t in handles], loc="center left", fontsize=6.5,
+                   title="order p (orientation / energy)", title_fontsize=7, frameon=False)
+    return png_bytes(fig)
+
+
+def speed_accuracy(runs: list[dict]) -> bytes | None:
+    """Per case: orientation error max vs wall time per simulated second (log-log), one line per
+    engine run through its time steps."""
+    cases = list(rd.by_case(runs))
+    if not cases:
+        return None
+    labs = rd.labels(runs)
+    col = colours(labs)
+    ncol = min(3, len(cases))
+    nrow = (len(cases) + ncol - 1) // ncol
+    fig = _figure(4.0 * ncol, 3.1 * nrow + _legend_in(len(labs)) + 0.4)
+    handles = {}
+    for k, case in enumerate(cases):
+        ax = fig.add_subplot(nrow, ncol, k + 1)
+        case_runs = rd.by_case(runs)[case]
+        for lab in rd.labels(case_runs):
+            mine = sorted((r for r in case_runs if rd.label(r) == lab), key=lambda r: float(r["dt"]))
+            x, y = _finite_xy([rd.wall_per_simulated_s(r) for r in mine],
+                              [rd.metric(r, "orientation_error_max_rad") if r.get("status") == "ok" else None
+                               for r in mine], log_x=True, log_y=True)
+            if len(x):
+                handles[lab] = ax.plot(x, y, marker="o", markersize=3, linewidth=1, color=col[lab],
+                                       linestyle=linestyle(labs.index(lab), 10 if len(labs) <= 10 else 20))[0]
+        _log_axes(ax, x=True, y=True)
+        ax.set_title(case, fontsize=9)
+        ax.set_xlabel("wall time per simulated second (s/s)", fontsize=8)
+        ax.set_ylabel("orientation error max (rad)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(True, which="major", alpha=0.3)
+        if not any(len(ln.get_xdata()) for ln in ax.lines):
+            _empty(ax, "no ok run with a wall time")
+    if handles:
+        fig.legend([handles[lab] for lab in labs if lab in handles], [lab for lab in labs if lab in handles],
+                   loc="lower center", ncol=4, fontsize=7, frameon=False)
+    h = fig.get_figheight()
+    fig.subplots_adjust(left=0.08, right=0.98, top=1 - 0.35 / h, bottom=(_legend_in(len(handles)) + 0.5) / h,
+                        wspace=0.3, hspace=0.5)
+    return png_bytes(fig)
+
+
+# --- per case and dt ------------------------------------------------------------------------------
+
+def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | None, out_dir: Path,
+            all_labels: list[str]) -> tuple[bytes | None, list[str]]:
+    """One 4-panel figure for the runs of a case at one dt: orientation error (log), energy error
+    (log), angular momentum error (log), world angular velocity components vs the truth.
+    Returns (PNG bytes or None, notes about runs that could not be drawn)."""
+    from .metrics import series
+    from .reference_impl.rotations import geodesic_angle
+    from .results import load_trajectory
+
+    col = colours(all_labels)
+    notes = []
+    loaded = []
+    truth_shown = None
+    for r in runs:
+        if r.get("status") not in ("ok", "diverged") or not r.get("trajectory"):
+            continue
+        try:
+            tr, truth = load_trajectory(Path(out_dir) / r["trajectory"])
+        except (OSError, KeyError, ValueError) as e:
+            notes.append(f"{rd.label(r)}: trajectory file {r['trajectory']} unreadable ({type(e).__name__})")
+            continue
+        if truth is None or len(tr) == 0:
+            notes.append(f"{rd.label(r)}: no truth in {r['trajectory']}")
+            continue
+        n = min(len(tr), len(truth))
+        t_end = rd.number(r.get("diverged_at_s"))
+        keep = np.ones(n, bool) if t_end is None else (tr.t[:n] <= t_end)
+        with np.errstate(all="ignore"):
+            ori = geodesic_angle(truth.quaternion_wxyz[:n], tr.quaternion_wxyz[:n])
+            s = series(physics, tr, truth) if physics is not None else None
+        loaded.append((r, tr.t[:n], keep, ori, s, tr.angular_velocity[:n]))
+        if truth_shown is None or len(truth) > len(truth_shown):  # a diverged run's truth is cut short
+            truth_shown = truth
+    if not loaded:
+        return None, notes
+    fig = _figure(11.0, 7.0 + _legend_in(len(loaded)))
+    axes = [fig.add_subplot(2, 2, k + 1) for k in range(4)]
+    titles = ("orientation error (rad)", "energy error (rel. to max KE)",
+              "angular momentum error (rel. to max |L|)", "world angular velocity (rad/s); truth dashed")
+    handles = {}
+    for r, t, keep, ori, s, w in loaded:
+        lab = rd.label(r)
+        c = col[lab]
+        ls = linestyle(all_labels.index(lab), 10 if len(all_labels) <= 10 else 20)
+        sl = _decimate(len(t))
+        curves = [ori, s.energy_error if s else None, s.angular_momentum_error if s else None]
+        for ax, y in zip(axes[:3], curves):
+            if y is None:
+                continue
+            x, yy = _finite_xy(t[keep][sl], np.asarray(y)[keep][sl], log_y=True)
+            h = ax.plot(x, yy, color=c, linestyle=ls, linewidth=1)[0]
+            handles.setdefault(lab, h)
+        for k in range(3):
+            x, yy = _finite_xy(t[keep][sl], w[keep][sl, k])
+            axes[3].plot(x, yy, color=c, linestyle=ls, linewidth=1, alpha=0.8)
+    if truth_shown is not None:
+        tt = truth_shown.t
+        sl = _decimate(len(tt))
+        for k in range(3):
+            x, yy = _finite_xy(tt[sl], truth_shown.angular_velocity[sl, k])
+            axes[3].plot(x, yy, **TRUTH_STYLE)
+        w_true = truth_shown.angular_velocity[np.all(np.isfinite(truth_shown.angular_velocity), axis=1)]
+        if len(w_true):
+            lo, hi = float(w_true.min()), float(w_true.max())
+            pad = max(0.25 * (hi - lo), 0.1 * max(abs(lo), abs(hi)), 1e-3)
+            axes[3].set_ylim(lo - pad, hi + pad)  # a blown-up run must not flatten the truth
+    for k, (ax, title) in enumerate(zip(axes, titles)):
+        ax.set_title(title, fontsize=9)
+        ax.set_xlabel("t (s)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(True, alpha=0.3)
+        if k < 3:
+            if any(len(ln.get_xdata()) for ln in ax.lines):
+                _log_axes(ax, y=True)
+                if ax.get_ylim()[1] > LOG_PANEL_TOP:  # a blow-up must not squash the other runs
+                    ax.set_ylim(top=LOG_PANEL_TOP)
+            else:
+                _empty(ax, "needs the case's mass and inertia" if physics is None and k in (1, 2)
+                       else "no positive finite error to draw on a log axis")
+    fig.suptitle(f"{case}, dt = {dt:g} s", fontsize=10)
+    if handles:
+        labs = [lab for lab in all_labels if lab in handles]
+        fig.legend([handles[lab] for lab in labs], labs, loc="lower center", ncol=4, fontsize=7, frameon=False)
+    h = fig.get_figheight()
+    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.55 / h, bottom=(_legend_in(len(handles)) + 0.5) / h,
+                        wspace=0.2, hspace=0.4)
+    return png_bytes(fig), notes
