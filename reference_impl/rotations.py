@@ -66,32 +66,27 @@ def matrix_from_quat(q: np.ndarray) -> np.ndarray:
 
 
 def quat_from_matrix(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) with w >= 0 of a (..., 3, 3) rotation matrix (Shepperd's method)."""
+    """Unit quaternion (w, x, y, z) with w >= 0 of a (..., 3, 3) rotation matrix (Shepperd's method:
+    the largest of 4 w^2, 4 x^2, 4 y^2, 4 z^2 picks a well-conditioned formula).  Non-finite -> NaN."""
     R = np.asarray(R, dtype=float)
-    batch = R.shape[:-2]
-    Rf = R.reshape(-1, 3, 3)
-    out = np.empty((Rf.shape[0], 4))
-    for i, M in enumerate(Rf):
-        if not np.all(np.isfinite(M)):
-            out[i] = np.nan
-            continue
-        tr = M[0, 0] + M[1, 1] + M[2, 2]
-        cands = np.array([tr, M[0, 0], M[1, 1], M[2, 2]])
-        k = int(np.argmax(cands))
-        if k == 0:
-            s = 2.0 * np.sqrt(1.0 + tr)
-            q = [0.25 * s, (M[2, 1] - M[1, 2]) / s, (M[0, 2] - M[2, 0]) / s, (M[1, 0] - M[0, 1]) / s]
-        elif k == 1:
-            s = 2.0 * np.sqrt(1.0 + M[0, 0] - M[1, 1] - M[2, 2])
-            q = [(M[2, 1] - M[1, 2]) / s, 0.25 * s, (M[0, 1] + M[1, 0]) / s, (M[0, 2] + M[2, 0]) / s]
-        elif k == 2:
-            s = 2.0 * np.sqrt(1.0 + M[1, 1] - M[0, 0] - M[2, 2])
-            q = [(M[0, 2] - M[2, 0]) / s, (M[0, 1] + M[1, 0]) / s, 0.25 * s, (M[1, 2] + M[2, 1]) / s]
-        else:
-            s = 2.0 * np.sqrt(1.0 + M[2, 2] - M[0, 0] - M[1, 1])
-            q = [(M[1, 0] - M[0, 1]) / s, (M[0, 2] + M[2, 0]) / s, (M[1, 2] + M[2, 1]) / s, 0.25 * s]
-        out[i] = q
-    return quat_canonical(quat_normalize(out)).reshape(batch + (4,))
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    d21, d02, d10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
+    s01, s02, s12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
+    cands = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k = np.argmax(np.nan_to_num(cands, nan=-np.inf), axis=-1)
+        r = np.sqrt(np.maximum(np.take_along_axis(cands, k[..., None], -1)[..., 0], 0.0))
+        h = 0.5 / r
+        options = np.stack([
+            np.stack([0.5 * r, d21 * h, d02 * h, d10 * h], -1),
+            np.stack([d21 * h, 0.5 * r, s01 * h, s02 * h], -1),
+            np.stack([d02 * h, s01 * h, 0.5 * r, s12 * h], -1),
+            np.stack([d10 * h, s02 * h, s12 * h, 0.5 * r], -1),
+        ], -2)
+        q = np.take_along_axis(options, k[..., None, None], -2)[..., 0, :]
+        q = quat_canonical(quat_normalize(q))
+    bad = ~np.all(np.isfinite(R), axis=(-2, -1))
+    return np.where(bad[..., None], np.nan, q)
 
 
 def quat_from_rotvec(phi: np.ndarray) -> np.ndarray:
