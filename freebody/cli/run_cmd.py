@@ -42,6 +42,8 @@ def add_parser(sub) -> None:
     p.add_argument("--duration", type=_positive_float, metavar="T", help="simulated time in s; default: the case's")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--no-report", action="store_true",
+                   help="do not write report.md and report.html (freebody report DIR writes them later)")
 
 
 def run(args) -> int:
@@ -51,6 +53,11 @@ def run(args) -> int:
     specs = expand(problems, engines, args.integrator, args.dt, args.duration)
     out_dir = Path(args.out)
     doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet)
-    print(summary_table(doc["runs"]))
+    print(summary_table(doc["runs"]), flush=True)
+    from ..report import finish_run  # fitted orders into results.json, then report.md/.html
+
+    doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report)
     print(f"\nresults: {out_dir / 'results.json'}")
+    for path in reports:
+        print(f"report: {path}")
     return 1 if any(r["status"] == "failed" for r in doc["runs"]) else 0
