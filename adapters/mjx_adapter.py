@@ -37,11 +37,16 @@ freely in one process (and in spawned workers).  Enabling x64 globally and casti
 data to float32 does NOT give a float32 run: MJX allocates float64 temporaries under x64 and
 ``qpos`` comes back float64.  A float32 run is verified at compile time (the lowered StableHLO has
 no f64 type) and at run time (``qpos`` is float32); the trajectory is returned in float64 (the
-float32 values, widened exactly).  Model numbers (mass, inertia, dt, gravity) and the initial
-state are rounded to float32 in a float32 run.
+float32 values, widened exactly).  Model numbers (mass, inertia, dt, gravity), the loads and the
+initial state are rounded to float32 in a float32 run.  JAX's trace caches do not keep the two
+modes apart for every function (see :func:`_x64`): they are cleared (``jax.clear_caches()``, which
+also drops the user's own jit caches: a recompile, never a wrong result) when a scope's mode
+differs from the process-wide one.
 
 Integrators: what ``mjx.step`` implements: ``Euler``, ``RK4``, ``implicitfast`` (MJX's
-implicitfast has no RNE derivative: the gyroscopic term stays explicit, unlike C MuJoCo 4.0's).
+implicitfast has no RNE derivative: the gyroscopic term stays explicit, unlike C MuJoCo 4.0's, so
+on a free body it is MJX's Euler; MJX 3.17's RK4 is second order on the free-joint orientation,
+C MuJoCo 4.0's fourth order).
 ``implicit`` is rejected by ``put_model`` and ``discrete`` by ``mjx.step``.
 
 Instability: MJX has no warnings counter (C MuJoCo's "Nan, Inf or huge value" checks) and no

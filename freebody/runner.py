@@ -29,6 +29,7 @@ from .reference_impl.truth import truth_kind, truth_trajectory
 from . import tolerances as tol
 
 STATUSES = ("ok", "diverged", "failed", "skipped")
+PRECISIONS = ("float32", "float64")  # floating-point precisions an engine may offer
 
 # Reference maps an engine run is compared with (scheme identification); rk4 only where the engine
 # offers an RK4 of its own.
@@ -75,6 +76,9 @@ class RunResult:
     diverged_at_s: float | None = None
     trajectory: str | None = None
     engine_output: list = field(default_factory=list)
+    # s spent compiling the engine's step (JIT engines, e.g. mjx; 0 when cached; None: no JIT),
+    # included in wall_time_s
+    compile_time_s: float | None = None
 
     def to_json(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -119,6 +123,48 @@ def engine_integrators(engine: str) -> tuple[str, ...] | None:
         return None
 
 
+def engine_precisions(engine: str) -> tuple[str, ...] | None:
+    """Precisions the installed engine offers (``Adapter.precisions``), or None if it is not
+    installed or its adapter fails to load."""
+    if not is_available(engine):
+        return None
+    try:
+        with capture_output():
+            return tuple(load_adapter(engine).precisions)
+    except Exception:
+        return None
+
+
+def select_precisions(offered: dict[str, tuple[str, ...] | None],
+                      requested: list[str] | None) -> dict[str, list[str]]:
+    """Apply ``--precision`` selections to every engine: engine -> its precisions to run.
+
+    None: every precision each engine offers.  Otherwise an engine runs the requested ones it
+    offers and is left out of the matrix when it offers none; a requested precision that no
+    selected engine offers is bad input.  An engine that is not installed (offered None) keeps one
+    run (float64, or the first requested), to be recorded as skipped.
+    """
+    if requested:
+        for p in requested:
+            if p not in PRECISIONS:
+                raise InputError(f"--precision: unknown precision {p!r}; known: {', '.join(PRECISIONS)}")
+        known = {e: o for e, o in offered.items() if o is not None}
+        if len(known) == len(offered):
+            for p in requested:
+                if not any(p in o for o in known.values()):
+                    have = "; ".join(f"{e}: {', '.join(o)}" for e, o in known.items())
+                    raise InputError(f"--precision: no selected engine offers {p} ({have})")
+    out = {}
+    for engine, o in offered.items():
+        if o is None:
+            out[engine] = ["float64" if not requested or "float64" in requested else requested[0]]
+        elif requested:
+            out[engine] = [p for p in o if p in requested]
+        else:
+            out[engine] = list(o)
+    return out
+
+
 def select_integrators(engine: str, offered: tuple[str, ...], requested: list[str] | None) -> list[str]:
     """Apply ``--integrator`` selections: NAME applies to every engine, ENGINE:NAME to one engine.
 
@@ -151,8 +197,12 @@ def select_integrators(engine: str, offered: tuple[str, ...], requested: list[st
 
 
 def expand(problems: list[Problem], engines: list[str], integrators: list[str] | None,
-           dts: list[float] | None, duration: float | None) -> list[RunSpec]:
-    """Every run of the matrix, in a stable order (case, engine, integrator, dt)."""
+           dts: list[float] | None, duration: float | None,
+           precisions: list[str] | None = None) -> list[RunSpec]:
+    """Every run of the matrix, in a stable order (case, dt, engine, integrator, precision).
+
+    precisions : None for every precision each engine offers (``Adapter.precisions``), else the
+    ones to run (see :func:`select_precisions`)."""
     if dts is not None:
         for d in dts:
             if not (np.isfinite(d) and d > 0):
@@ -166,6 +216,7 @@ def expand(problems: list[Problem], engines: list[str], integrators: list[str] |
             per_engine[engine] = ["*"]
         else:
             per_engine[engine] = select_integrators(engine, offered, integrators)
+    per_precision = select_precisions({e: engine_precisions(e) for e in engines}, precisions)
     specs = []
     for pb in problems:
         for d in (dts or pb.dts):
@@ -176,7 +227,8 @@ def expand(problems: list[Problem], engines: list[str], integrators: list[str] |
             steps = pb.steps(d, duration)
             for engine in engines:
                 for integ in per_engine[engine]:
-                    specs.append(RunSpec(pb, engine, integ, float(d), steps))
+                    for prec in per_precision[engine]:
+                        specs.append(RunSpec(pb, engine, integ, float(d), steps, prec))
     return specs
 
 
@@ -232,7 +284,7 @@ def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> 
     except Exception as e:  # a broken install is a failure, never a skip
         return _no_trajectory(base, "failed", f"importing the {spec.engine} adapter failed: {_describe(e)}",
                               time.perf_counter() - t0)
-    version = settings = None
+    version = settings = adapter = None
     diverged_at = None
     message = ""
     try:
@@ -249,6 +301,7 @@ def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> 
     except Exception as e:
         return _no_trajectory(base, "failed", _describe(e), time.perf_counter() - t0, version, settings)
     wall = time.perf_counter() - t0
+    compile_time = getattr(adapter, "compile_time_s", None)
     try:
         truth = cache.get(pb, spec.dt, spec.steps)
     except Exception as e:
@@ -275,7 +328,7 @@ def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> 
     final = trajectory.state(-1).as_dict() if status == "ok" else None
     result = RunResult(**base, status=status, message=message, metrics=_clean(metrics), final_state=final,
                        wall_time_s=wall, engine_version=version, engine_settings=settings or {},
-                       matches_reference=matches, diverged_at_s=diverged_at)
+                       matches_reference=matches, diverged_at_s=diverged_at, compile_time_s=compile_time)
     return RunOutput(result, trajectory, truth, series)
 
 

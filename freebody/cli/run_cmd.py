@@ -40,6 +40,10 @@ def add_parser(sub) -> None:
     p.add_argument("--dt", action="append", type=_positive_float, metavar="DT",
                    help="time step in s (repeatable); default: the case's")
     p.add_argument("--duration", type=_positive_float, metavar="T", help="simulated time in s; default: the case's")
+    p.add_argument("--precision", action="append", choices=("float32", "float64"),
+                   help="floating-point precision (repeatable); default: every one each engine offers "
+                        "(mjx: float32 and float64, the others float64); engines offering none of "
+                        "the chosen ones are left out, and a precision no selected engine offers is an error")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.add_argument("--no-report", action="store_true",
@@ -50,7 +54,7 @@ def run(args) -> int:
     names = args.cases or list(bundled_case_paths())
     problems = [load_case(n) for n in names]
     engines = select_engines(args.engine)
-    specs = expand(problems, engines, args.integrator, args.dt, args.duration)
+    specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision)
     out_dir = Path(args.out)
     doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet)
     print(summary_table(doc["runs"]), flush=True)
