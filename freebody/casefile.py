@@ -10,7 +10,8 @@ reason.  The format (units are normative)::
     [body]
     mass = 1.0                     # kg
     inertia = [[1,0,0],[0,2,0],[0,0,3]]   # kg m^2, about the COM, body frame
-    # or: shape = "box" | "sphere" | "cylinder", size = [...] (m), and mass or density (kg/m^3)
+    # or: shape = "box" | "sphere" | "cylinder" | "capsule" | "ellipsoid" | "cone", size = [...] (m),
+    # or: mesh = "part.obj" (closed OBJ/STL, relative to this file); with mass or density (kg/m^3)
     [initial]
     position = [0, 0, 0]           # m, COM, world
     orientation = [1, 0, 0, 0]     # (w, x, y, z), body -> world
