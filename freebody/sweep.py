@@ -1,0 +1,482 @@
+"""Randomised sweeps: N physically valid random free bodies, run on every selected engine, reduced to
+the distribution of each metric per engine and integrator, with the worst cases saved as case files.
+
+A body of a sweep is drawn from ``np.random.default_rng(seed)`` in a fixed order, the same number of
+draws per body, so the same seed always gives the same bodies and the first n bodies of a sweep of
+N > n are those of the sweep of n.  Each body is:
+
+- mass M, kg: log-uniform in [0.1, 10];
+- principal moments built from the body's second moments of mass s_i = M l_i^2 (l_i, m, an rms
+  half-extent, log-uniform in [0.02, 0.5]): I1 = s2 + s3, I2 = s1 + s3, I3 = s1 + s2, so the
+  triangle inequality I_i + I_j >= I_k holds by construction (ratios up to about 300 : 1);
+- a random principal frame Q (uniform on SO(3)): I_body = Q diag(I1, I2, I3) Q^T, full 3x3;
+- a random orientation (uniform on SO(3)), position uniform in [-1, 1]^3 m, linear velocity
+  N(0, 1) m/s per world axis;
+- angular velocity, world frame: a uniform direction times a magnitude uniform in [0, max_spin] rad/s;
+- gravity (0, 0, -9.81) m/s^2 on a coin flip ("mixed"), always ("on") or never ("off").
+
+No loads act, so every body has the closed-form truth.  Each body exists first as case-file text
+(:func:`dump_case`) and is parsed from that text, so the saved file of a worst case reproduces its
+runs bit for bit: ``freebody run worst/<case>.toml --engine E --integrator I``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import platform
+import sys
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, TextIO
+
+import numpy as np
+
+from . import __version__
+from .casefile import parse_case
+from .reference_impl.problem import Body, InitialState, Problem
+from .reference_impl.rotations import matrix_from_quat, quat_normalize
+from .reference_impl.truth import truth_kind
+from .results import write_json_atomic
+from .runner import STATUSES, RunSpec, TruthCache, execute, expand
+from .summary import run_label
+
+SWEEP_SCHEMA_VERSION = 1
+
+# The metrics a sweep reduces (maxima over each run, see freebody.metrics), with a short label.
+SWEEP_METRICS = {
+    "orientation_error_max_rad": "orientation error max (rad)",
+    "angular_momentum_error_max_rel": "angular momentum error max (relative)",
+    "energy_error_max_rel": "energy error max (relative)",
+    "position_error_max_m": "COM position error max (m)",
+    "rotation_orthonormality_error_max": "||R^T R - 1||_F max (matrix integrators)",
+}
+
+GRAVITY = (0.0, 0.0, -9.81)  # m/s^2, world: the gravity a body gets when its coin says so
+GRAVITY_MODES = ("mixed", "on", "off")
+MASS_RANGE_KG = (0.1, 10.0)  # log-uniform
+HALF_EXTENT_RANGE_M = (0.02, 0.5)  # log-uniform rms half-extent per principal axis
+MAX_NON_OK_PER_GROUP = 3  # worst-case files kept for diverged/failed runs, per engine/integrator/dt
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """What a sweep draws and runs.
+
+    seed : int >= 0, the seed of ``np.random.default_rng``.
+    count : number of bodies, >= 1.
+    duration : s, simulated time of every run.
+    dts : time steps, s.
+    max_spin : rad/s, bound on |w| at t = 0.
+    gravity : "mixed" (a coin flip per body), "on" or "off".
+    """
+
+    seed: int
+    count: int
+    duration: float = 2.0
+    dts: tuple[float, ...] = (0.01,)
+    max_spin: float = 10.0
+    gravity: str = "mixed"
+
+    def as_dict(self) -> dict:
+        return {"seed": self.seed, "count": self.count, "duration": self.duration,
+                "dt": list(self.dts), "max_spin": self.max_spin, "gravity": self.gravity}
+
+
+@dataclass(frozen=True)
+class SweepBody:
+    """One random body: the parsed problem, the case-file text it was parsed from, and the draws.
+
+    params : principal_moments (3,) kg m^2 ascending, principal_frame_wxyz (4,), spin rad/s,
+        gravity_on bool.
+    """
+
+    problem: Problem
+    toml: str
+    params: dict
+
+
+# --- writing a case file ------------------------------------------------------------------------
+
+def _f(x) -> str:
+    """A float as TOML text that reads back as the same float (Python's shortest repr)."""
+    x = float(x)
+    if not math.isfinite(x):
+        raise ValueError(f"cannot write the non-finite number {x!r} to a case file")
+    return repr(x)
+
+
+def _vec(a) -> str:
+    return "[" + ", ".join(_f(x) for x in np.asarray(a, dtype=float).reshape(-1)) + "]"
+
+
+def _mat(a) -> str:
+    return "[" + ", ".join(_vec(row) for row in np.asarray(a, dtype=float)) + "]"
+
+
+def _str(s: str) -> str:
+    """A TOML basic string (escapes quote, backslash and the control characters TOML forbids)."""
+    out = []
+    for ch in s:
+        if ch in '"\\':
+            out.append("\\" + ch)
+        elif ch == "\n":
+            out.append("\\n")
+        elif ch == "\t":
+            out.append("\\t")
+        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
+            out.append(f"\\u{ord(ch):04X}")
+        else:
+            out.append(ch)
+    return '"' + "".join(out) + '"'
+
+
+def dump_case(problem: Problem) -> str:
+    """A case file (TOML text, the keys of :mod:`freebody.casefile`) that parses back to ``problem``.
+
+    Floats are written with Python's shortest round-trip repr, the inertia as the full 3x3 tensor.
+    Parsing renormalises the quaternion, which may move it by one rounding error; the sweep avoids
+    even that by running the problem parsed from this very text.
+    """
+    pb, init = problem, problem.initial
+    lines = [f"name = {_str(pb.name)}", f"description = {_str(pb.description)}"]
+    if pb.duration_steps is not None:
+        lines.append(f"duration_steps = {int(pb.duration_steps)}")
+    else:
+        lines.append(f"duration = {_f(pb.duration)}  # s")
+    lines.append(f"dt = {_vec(pb.dts)}  # s")
+    lines += ["", "[body]",
+              f"mass = {_f(pb.body.mass)}  # kg",
+              f"inertia = {_mat(pb.body.I_body)}  # kg m^2, about the COM, body frame",
+              "", "[initial]",
+              f"position = {_vec(init.position)}  # m, COM, world",
+              f"orientation = {_vec(init.quaternion_wxyz)}  # (w, x, y, z), body -> world",
+              f"linear_velocity = {_vec(init.linear_velocity)}  # m/s, COM, world",
+              f"angular_velocity = {_vec(init.angular_velocity)}  # rad/s, world",
+              "", "[world]",
+              f"gravity = {_vec(pb.gravity)}  # m/s^2"]
+    for ld in pb.loads:
+        lines += ["", "[[loads]]"]
+        has_torque = bool(np.any(ld.torque)) or bool(np.any(ld.body_torque))
+        if np.any(ld.force) or ld.point is not None or ld.body_point is not None or not has_torque:
+            lines.append(f"force = {_vec(ld.force)}  # N, world")
+        if ld.point is not None:
+            lines.append(f"point = {_vec(ld.point)}  # m, world point")
+        if ld.body_point is not None:
+            lines.append(f"body_point = {_vec(ld.body_point)}  # m, body frame")
+        if np.any(ld.torque):
+            lines.append(f"torque = {_vec(ld.torque)}  # N m, world frame")
+        if np.any(ld.body_torque):
+            lines.append(f"body_torque = {_vec(ld.body_torque)}  # N m, body frame")
+        lines.append(f"start = {_f(ld.start)}  # s")
+        if ld.steps is not None:
+            lines.append(f"steps = {int(ld.steps)}")
+        if ld.end is not None:
+            lines.append(f"end = {_f(ld.end)}  # s")
+    return "\n".join(lines) + "\n"
+
+
+# --- drawing bodies -----------------------------------------------------------------------------
+
+def _random_unit_quaternion(rng: np.random.Generator) -> np.ndarray:
+    """Uniform on SO(3): a normalised 4D Gaussian, sign chosen with w >= 0.  Shape (4,), (w, x, y, z)."""
+    q = quat_normalize(rng.normal(size=4))
+    return -q if q[0] < 0 else q
+
+
+def case_name(seed: int, index: int) -> str:
+    return f"sweep_s{seed}_{index:04d}"
+
+
+def random_body(rng: np.random.Generator, index: int, settings: SweepSettings) -> SweepBody:
+    """Draw body ``index`` (the draws of earlier bodies must already have been taken from ``rng``)."""
+    lo, hi = np.log10(MASS_RANGE_KG)
+    mass = float(10.0 ** rng.uniform(lo, hi))
+    lo, hi = np.log10(HALF_EXTENT_RANGE_M)
+    s = mass * (10.0 ** rng.uniform(lo, hi, size=3)) ** 2  # kg m^2, second moments of mass
+    moments = np.array([s[1] + s[2], s[0] + s[2], s[0] + s[1]])
+    q_frame = _random_unit_quaternion(rng)
+    Q = matrix_from_quat(q_frame)
+    I = Q @ np.diag(moments) @ Q.T
+    I = 0.5 * (I + I.T)  # exactly symmetric, so parsing (which symmetrises) keeps it bit for bit
+    q0 = _random_unit_quaternion(rng)
+    direction = rng.normal(size=3)
+    direction /= np.linalg.norm(direction)
+    spin = float(settings.max_spin * rng.uniform(0.0, 1.0))
+    w0 = spin * direction
+    x0 = rng.uniform(-1.0, 1.0, size=3)
+    v0 = rng.normal(0.0, 1.0, size=3)
+    coin = bool(rng.uniform() < 0.5)  # always drawn, so the bodies do not depend on the mode
+    gravity_on = {"mixed": coin, "on": True, "off": False}[settings.gravity]
+    name = case_name(settings.seed, index)
+    desc = (f"Random body {index} of 'freebody sweep --seed {settings.seed}': mass {mass:.4g} kg, "
+            f"principal moments ({', '.join(f'{m:.4g}' for m in np.sort(moments))}) kg m^2 in a random "
+            f"principal frame, |w| = {spin:.4g} rad/s, gravity {'on' if gravity_on else 'off'}; "
+            f"closed-form truth.")
+    draft = Problem(name=name, description=desc,
+                    body=Body(mass=mass, I_body=I),
+                    initial=InitialState(position=x0, quaternion_wxyz=q0, linear_velocity=v0,
+                                         angular_velocity=w0),
+                    gravity=np.array(GRAVITY if gravity_on else (0.0, 0.0, 0.0)),
+                    duration=settings.duration, dts=settings.dts)
+    text = dump_case(draft)
+    problem = parse_case(tomllib.loads(text), f"<sweep body {name}>")
+    params = {"principal_moments": np.sort(moments).tolist(), "principal_frame_wxyz": q_frame.tolist(),
+              "spin": spin, "gravity_on": gravity_on, "truth": truth_kind(problem)}
+    return SweepBody(problem, text, params)
+
+
+def random_bodies(settings: SweepSettings) -> list[SweepBody]:
+    """The sweep's ``count`` bodies, drawn from ``np.random.default_rng(seed)``."""
+    rng = np.random.default_rng(settings.seed)
+    return [random_body(rng, i, settings) for i in range(settings.count)]
+
+
+# --- running ------------------------------------------------------------------------------------
+
+class BodyProgress:
+    """Progress per body: a rewritten line on a terminal, a line every 10% otherwise (CI logs)."""
+
+    def __init__(self, total: int, stream: TextIO | None = None, enabled: bool = True):
+        self.total, self.done = total, 0
+        self.stream = stream or sys.stderr
+        self.enabled = enabled and total > 0
+        self.tty = self.enabled and self.stream.isatty()
+        self.t0 = time.perf_counter()
+        self.every = max(1, total // 10)
+
+    def update(self, name: str, counts: dict) -> None:
+        self.done += 1
+        if not self.enabled:
+            return
+        line = (f"[{self.done}/{self.total} bodies] {time.perf_counter() - self.t0:6.1f}s "
+                + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"  ({name})")
+        if self.tty:
+            self.stream.write("\r\033[K" + line[:150] + ("\n" if self.done == self.total else ""))
+        elif self.done % self.every == 0 or self.done == self.total:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+
+def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[str] | None = None,
+               progress: bool = True, precisions: list[str] | None = None) -> list[dict]:
+    """Run every body on every selected engine and integrator at the sweep's time steps.
+
+    Returns the runs as results.json ``runs`` entries (in body, dt, engine, integrator order), without
+    the per-run ``engine_settings`` (reproduce a run with ``freebody run`` to see them).
+    """
+    extra = {"precisions": precisions} if precisions else {}
+    specs = expand([b.problem for b in bodies], engines, integrators, None, None, **extra)
+    by_case: dict[str, list[RunSpec]] = {}
+    for s in specs:
+        by_case.setdefault(s.problem.name, []).append(s)
+    bar = BodyProgress(len(bodies), enabled=progress)
+    counts = {s: 0 for s in STATUSES}
+    runs = []
+    for body in bodies:
+        cache = TruthCache()  # one body at a time: its truth and reference maps, then freed
+        for spec in by_case.get(body.problem.name, []):
+            run = execute(spec, cache).result.to_json()
+            run.pop("engine_settings", None)
+            run.pop("trajectory", None)
+            counts[run["status"]] += 1
+            runs.append(run)
+        bar.update(body.problem.name, counts)
+    return runs
+
+
+# --- reducing -----------------------------------------------------------------------------------
+
+def group_label(run: dict) -> str:
+    """engine/integrator[/precision] dt=<dt>: the unit over which a sweep's distributions are taken."""
+    return f"{run_label(run)} dt={run['dt']:g}"
+
+
+def summarize_runs(runs: list[dict]) -> dict:
+    """Per engine/integrator/dt: status counts and, per metric, n, median, p95, worst, worst_case.
+
+    Only finite values of ok runs enter a distribution (a diverged run has no meaningful maxima:
+    it is counted in ``status``); a metric that no run defines (e.g. orthonormality for quaternion
+    integrators) is omitted.
+    """
+    groups: dict[str, list[dict]] = {}
+    for r in runs:
+        groups.setdefault(group_label(r), []).append(r)
+    out = {}
+    for label, rs in groups.items():
+        entry = {"engine": rs[0]["engine"], "integrator": rs[0]["integrator"], "dt": rs[0]["dt"],
+                 "precision": rs[0].get("precision", "float64"),
+                 "runs": len(rs), "status": {s: sum(r["status"] == s for r in rs) for s in STATUSES},
+                 "metrics": {}}
+        messages = sorted({r["message"] for r in rs if r["status"] in ("skipped", "failed") and r["message"]})
+        if messages:
+            entry["messages"] = messages[:3]
+        for key in SWEEP_METRICS:
+            pairs = [(r["metrics"].get(key), r["case"]) for r in rs if r["status"] == "ok"]
+            pairs = [(v, c) for v, c in pairs if v is not None]
+            if not pairs:
+                continue
+            values = np.array([v for v, _ in pairs])
+            worst = int(np.argmax(values))  # first of equal maxima: deterministic
+            entry["metrics"][key] = {"n": len(values), "median": float(np.median(values)),
+                                     "p95": float(np.percentile(values, 95)),
+                                     "worst": float(values[worst]), "worst_case": pairs[worst][1]}
+        out[label] = entry
+    return out
+
+
+def worst_cases(summary: dict, runs: list[dict]) -> list[dict]:
+    """The runs worth a case file: per group, the worst body of each metric and up to
+    MAX_NON_OK_PER_GROUP diverged or failed bodies.  Sorted by group, then kind."""
+    out = []
+    for label, entry in summary.items():
+        base = {"group": label, "engine": entry["engine"], "integrator": entry["integrator"],
+                "precision": entry["precision"], "dt": entry["dt"]}
+        for key, stats in entry["metrics"].items():
+            out.append({**base, "reason": key, "value": stats["worst"], "case": stats["worst_case"]})
+        bad = [r for r in runs if group_label(r) == label and r["status"] in ("diverged", "failed")]
+        for r in bad[:MAX_NON_OK_PER_GROUP]:
+            out.append({**base, "reason": r["status"], "value": r.get("diverged_at_s"), "case": r["case"],
+                        "message": r["message"]})
+    return out
+
+
+def reproduce_command(worst: dict, path: str) -> str:
+    precision = worst.get("precision", "float64")
+    return (f"freebody run {path} --engine {worst['engine']} --integrator {worst['engine']}:"
+            f"{worst['integrator']} --dt {worst['dt']:g}"
+            + (f" --precision {precision}" if precision != "float64" else ""))
+
+
+# --- the whole sweep ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SweepOutcome:
+    document: dict
+    report: str
+    wall_time_s: float
+
+
+def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | None = None,
+          out_dir: Path | None = None, progress: bool = True, precisions: list[str] | None = None,
+          on_bodies: Callable[[list[SweepBody]], None] | None = None) -> SweepOutcome:
+    """Draw the bodies, run them, reduce; write sweep.json, sweep.txt and worst/*.toml to out_dir."""
+    from .suite import engine_versions
+
+    t0 = time.perf_counter()
+    bodies = random_bodies(settings)
+    if on_bodies:
+        on_bodies(bodies)
+    runs = run_bodies(bodies, engines, integrators, progress=progress, precisions=precisions)
+    summary = summarize_runs(runs)
+    worst = worst_cases(summary, runs)
+    texts = {b.problem.name: b.toml for b in bodies}
+    for w in worst:
+        w["file"] = f"worst/{w['case']}.toml"
+        w["command"] = reproduce_command(w, w["file"])  # relative to the sweep's directory
+    wall = time.perf_counter() - t0
+    doc = {
+        "schema_version": SWEEP_SCHEMA_VERSION,
+        "kind": "freebody sweep",
+        "freebody_version": __version__,
+        "platform": f"{platform.system()} {platform.machine()} Python {platform.python_version()}",
+        "engines": engine_versions(engines),
+        "seed": settings.seed,
+        "count": settings.count,
+        "settings": settings.as_dict(),
+        "bodies": [_body_record(b) for b in bodies],
+        "runs": runs,
+        "summary": summary,
+        "worst_cases": worst,
+        "wall_time_s": wall,
+    }
+    report = format_report(doc, str(out_dir) if out_dir is not None else None)
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        for name in sorted({w["case"] for w in worst}):
+            _write_text(out_dir / "worst" / f"{name}.toml", texts[name])
+        write_json_atomic(out_dir / "sweep.json", doc)
+        _write_text(out_dir / "sweep.txt", report + "\n")
+    return SweepOutcome(doc, report, wall)
+
+
+def _body_record(b: SweepBody) -> dict:
+    pb = b.problem
+    return {"case": pb.name, "mass": pb.body.mass, "inertia": pb.body.I_body.tolist(),
+            "position": pb.initial.position.tolist(), "orientation": pb.initial.quaternion_wxyz.tolist(),
+            "linear_velocity": pb.initial.linear_velocity.tolist(),
+            "angular_velocity": pb.initial.angular_velocity.tolist(), "gravity": pb.gravity.tolist(),
+            **b.params}
+
+
+def _write_text(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _g(x) -> str:
+    return "-" if x is None else f"{x:.2e}"
+
+
+def format_report(doc: dict, out_dir: str | None) -> str:
+    """The plain-text sweep report: status counts, one distribution table per metric, worst cases."""
+    s = doc["settings"]
+    runs = doc["runs"]
+    counts = {st: sum(r["status"] == st for r in runs) for st in STATUSES}
+    lines = [f"freebody sweep: seed {s['seed']}, {s['count']} random bodies, {s['duration']:g} s at "
+             f"dt = {', '.join(f'{d:g}' for d in s['dt'])} s, |w| <= {s['max_spin']:g} rad/s, "
+             f"gravity {s['gravity']}; closed-form truth",
+             f"{len(runs)} runs: " + ", ".join(f"{n} {st}" for st, n in counts.items())
+             + f" ({doc['wall_time_s']:.1f} s)"]
+    summary = doc["summary"]
+    w = max([len(k) for k in summary] + [len("engine/integrator dt")])
+    for key, title in SWEEP_METRICS.items():
+        rows = [(label, e) for label, e in summary.items() if key in e["metrics"]]
+        if not rows:
+            continue
+        lines += ["", title,
+                  f"{'engine/integrator dt':<{w}}  {'ok/runs':>9}  {'median':>9}  {'p95':>9}  {'worst':>9}  worst case"]
+        for label, e in rows:
+            m = e["metrics"][key]
+            lines.append(f"{label:<{w}}  {e['status']['ok']:>4}/{e['runs']:<4}  {_g(m['median']):>9}  "
+                         f"{_g(m['p95']):>9}  {_g(m['worst']):>9}  {m['worst_case']}")
+    not_ok = [(label, e) for label, e in summary.items() if e["status"]["ok"] < e["runs"]]
+    if not_ok:
+        lines += ["", "not ok:"]
+        for label, e in not_ok:
+            parts = ", ".join(f"{n} {st}" for st, n in e["status"].items() if n and st != "ok")
+            bad = [c["case"] for c in doc["worst_cases"] if c["group"] == label and c["reason"] in ("diverged", "failed")]
+            more = f" (e.g. {', '.join(bad)})" if bad else ""
+            lines.append(f"  {label}: {parts}{more}")
+            for msg in e.get("messages", []):
+                lines.append(f"    {msg}")
+    if doc["worst_cases"]:
+        where = f"{out_dir}/worst/" if out_dir else "worst/"
+        files = sorted({c["case"] for c in doc["worst_cases"]})
+        example = doc["worst_cases"][0]
+        lines += ["", f"worst cases: {len(files)} case files in {where} (which run each one is worst for: "
+                      f"sweep.json worst_cases); reproduce one with e.g.",
+                  "  " + reproduce_command(example, f"{where}{example['case']}.toml")]
+    return "\n".join(lines)
+
+
+def load_sweep(path: str | Path) -> dict:
+    """Read a sweep.json (or a directory holding one)."""
+    from .errors import InputError
+
+    p = Path(path)
+    if p.is_dir():
+        p = p / "sweep.json"
+    try:
+        doc = json.loads(p.read_text())
+    except OSError as e:
+        raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
+    except json.JSONDecodeError as e:
+        raise InputError(f"{p}: not valid JSON: {e.msg} (line {e.lineno})") from None
+    if not isinstance(doc, dict) or doc.get("schema_version") != SWEEP_SCHEMA_VERSION:
+        raise InputError(f"{p}: schema_version: expected {SWEEP_SCHEMA_VERSION}; re-run freebody sweep "
+                         "with this version")
+    return doc
