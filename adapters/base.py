@@ -172,6 +172,14 @@ ENGINES: dict[str, tuple[str, str, str]] = {
 }
 
 
+# How to install an engine that is missing (default: the `engines` extra).
+INSTALL_HINTS: dict[str, str] = {"mjx": "pip install 'freebody[jax]'"}
+
+
+def install_hint(name: str) -> str:
+    return INSTALL_HINTS.get(name, "pip install 'freebody[engines]'")
+
+
 def _entry_point_engines() -> dict[str, tuple[str, str, str]]:
     found = {}
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
@@ -221,6 +229,6 @@ def load_adapter(name: str) -> type[Adapter]:
         # (also e.name == engine) is a broken install
         if isinstance(e, ModuleNotFoundError) and e.name == import_name:
             raise EngineMissing(f"{name} is not installed (import {import_name!r} failed): "
-                                f"pip install 'freebody[engines]'") from e
+                                f"{install_hint(name)}") from e
         raise
     return getattr(mod, cls)

@@ -5,13 +5,13 @@ import importlib.util
 
 import pytest
 
-from freebody.adapters.base import ENGINES
+from freebody.adapters.base import ENGINES, install_hint
 
 
 def _requires(engine: str):
     import_name = ENGINES[engine][0]
     missing = importlib.util.find_spec(import_name) is None
-    return pytest.mark.skipif(missing, reason=f"{engine} not installed (pip install 'freebody[engines]')")
+    return pytest.mark.skipif(missing, reason=f"{engine} not installed ({install_hint(engine)})")
 
 
 ALL_ENGINES = [pytest.param(name, marks=_requires(name), id=name) for name in ENGINES]
