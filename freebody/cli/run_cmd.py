@@ -27,6 +27,18 @@ def _positive_float(text: str) -> float:
     return x
 
 
+def _positive_int(text: str) -> int:
+    import argparse
+
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
+    return n
+
+
 def add_parser(sub) -> None:
     p = sub.add_parser("run", help="run cases on engines and write results, trajectories and a summary",
                        description="Run CASE|PATH ... (default: every bundled case) on every selected "
@@ -48,6 +60,17 @@ def add_parser(sub) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.add_argument("--no-report", action="store_true",
                    help="do not write report.md and report.html (freebody report DIR writes them later)")
+    p.add_argument("--jobs", type=_positive_int, metavar="N",
+                   help="worker processes running runs in parallel, each run isolated (default: the "
+                        "number of cores); 1: one after another in this process")
+    p.add_argument("--timeout", type=_positive_float, metavar="S",
+                   help="per-run time limit in s: a run past it is killed and recorded failed")
+    p.add_argument("--save-every", type=_positive_int, default=1, metavar="K",
+                   help="keep every K-th sample in the trajectory files (metrics use every step)")
+    p.add_argument("--executor", choices=("local", "dask"), default="local",
+                   help="where runs execute: local worker processes (default) or a dask cluster")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="dask scheduler address for --executor dask (e.g. tcp://127.0.0.1:8786)")
 
 
 def run(args) -> int:
@@ -56,7 +79,11 @@ def run(args) -> int:
     engines = select_engines(args.engine)
     specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision)
     out_dir = Path(args.out)
-    doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet)
+    from ..suite import default_jobs
+
+    doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet, save_every=args.save_every,
+                       jobs=args.jobs or default_jobs(), timeout=args.timeout, executor=args.executor,
+                       scheduler=args.scheduler)
     print(summary_table(doc["runs"]), flush=True)
     from ..report import finish_run  # fitted orders into results.json, then report.md/.html
 

@@ -1,0 +1,338 @@
+"""Execute runs: in this process, or in isolated worker processes, with a time limit per run.
+
+Each run is :func:`freebody.runner.execute` of one :class:`~freebody.runner.RunSpec`; the
+executors differ only in where it happens, never in the numbers.
+
+- :func:`run_serial`: in this process, one after another (``--jobs 1``).
+- :class:`LocalPool`: ``jobs`` long-lived worker processes (``python -m freebody.worker``,
+  spawned, never forked: forking a process that has imported JAX or an engine is unsafe), each in
+  its own process group.  A worker runs one run at a time; a run that crashes its worker (even a
+  segfault or ``abort()``) is ``failed`` with the signal, a run past the time limit is killed and
+  ``failed``; the worker is replaced and the other runs go on.  Workers are reused across runs.
+- :func:`freebody.dask_executor.run_dask`: the same tasks on a dask.distributed cluster.
+
+Sharing truths.  :func:`plan` groups the runs by (case, dt, steps), whose truth and reference maps
+they share (see :mod:`freebody.sharedcache`): a group's first run computes the truth before its
+engine starts, and the reference engine's runs of the identification maps produce those maps; the
+other runs of the group wait for what they need (other groups' runs fill the time), then read it
+from a directory shared by the workers.  Groups start largest first.
+
+Time limit.  A run's limit counts from the moment its truth is ready and its engine starts (or from
+when it was sent to its worker, while the truth is being computed).
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+from typing import Callable
+
+from .runner import SCHEME_CANDIDATES, RunSpec
+from .sharedcache import group_prefix
+from .worker import RunTask, Runner, failed_payload
+
+# Cost of a step of the reference engine relative to an engine's step (the reference integrators
+# loop in Python): only orders the groups, largest first; the numbers never depend on it.
+REFERENCE_STEP_WEIGHT = 20
+WORKER_START_ATTEMPTS = 3  # consecutive failures to start a worker before giving up
+KILL_WAIT_S = 5.0  # how long to wait for a killed worker to be reaped
+
+OnDone = Callable[[int, dict], None]  # (index of the run in the caller's specs, payload)
+
+
+@dataclass
+class Task:
+    """A run in the plan.
+
+    group : (problem key, dt, steps), the runs sharing a truth.
+    truth_of : index of the run whose worker computes the group's truth: this run starts once that
+        truth exists (None: this run computes it).
+    deps : indices of runs that must finish first (reference runs whose trajectories this run's
+        scheme identification reuses).
+    """
+
+    run: RunTask
+    group: tuple
+    deps: frozenset = field(default_factory=frozenset)
+    truth_of: int | None = None
+
+    @property
+    def index(self) -> int:
+        return self.run.index
+
+
+def _needed_references(spec: RunSpec) -> tuple[str, ...]:
+    """Reference maps that scheme identification compares this run with (as runner.identify)."""
+    if spec.engine == "reference":
+        return ()
+    return SCHEME_CANDIDATES + (("rk4",) if "rk4" in spec.integrator.lower() else ())
+
+
+def plan(specs: list[RunSpec], **run_options) -> list[Task]:
+    """Tasks of every spec, ordered: groups (problem, dt, steps) by estimated cost, largest first;
+    in a group the run that computes the truth (its first reference run, else its first run), then
+    the reference runs that produce identification maps, then the rest, in spec order.  ``run_options`` go to every :class:`~freebody.worker.RunTask`."""
+    keys: dict[int, str] = {}
+    groups: dict[tuple, list[int]] = {}
+    for i, s in enumerate(specs):
+        pkey = keys.setdefault(id(s.problem), f"p{len(keys)}")
+        groups.setdefault((pkey, float(s.dt), int(s.steps)), []).append(i)
+
+    def cost(members):
+        return sum(specs[i].steps * (REFERENCE_STEP_WEIGHT if specs[i].engine == "reference" else 1)
+                   for i in members)
+
+    tasks: list[Task] = []
+    for group, members in sorted(groups.items(), key=lambda kv: -cost(kv[1])):
+        producers = {specs[i].integrator: i for i in members
+                     if specs[i].engine == "reference" and specs[i].precision == "float64"}
+        # the truth's producer needs nothing from the group: a reference run if there is one
+        first = min(producers.values(), default=members[0])
+        ordered = [first] + [i for i in members if i in producers.values() and i != first] + \
+                  [i for i in members if i not in producers.values() and i != first]
+        for i in ordered:
+            deps = frozenset(producers[n] for n in _needed_references(specs[i]) if n in producers)
+            tasks.append(Task(RunTask(i, group[0], specs[i], share=len(members) > 1, **run_options),
+                              group, deps, None if i == first else first))
+    return tasks
+
+
+def run_serial(tasks: list[Task], on_done: OnDone) -> None:
+    """Execute the tasks in this process, in spec order within the plan's grouping."""
+    first_seen: dict[tuple, int] = {}
+    for t in tasks:
+        first_seen[t.group] = min(first_seen.get(t.group, t.index), t.index)
+    runner = Runner()
+    for t in sorted(tasks, key=lambda t: (first_seen[t.group], t.index)):
+        on_done(t.index, runner.run(t.run))
+
+
+# --- worker processes ------------------------------------------------------------------------
+
+def describe_exit(returncode: int | None) -> str:
+    """'died with signal SIGSEGV' / 'exited with code 1' for a worker's exit status."""
+    if returncode is None:
+        return "stopped responding"
+    if returncode < 0:
+        try:
+            return f"died with signal {signal.Signals(-returncode).name}"
+        except ValueError:
+            return f"died with signal {-returncode}"
+    return f"exited with code {returncode}"
+
+
+class Worker:
+    """One worker process and its two pipes."""
+
+    def __init__(self, options: dict):
+        r_task, w_task = os.pipe()
+        r_res, w_res = os.pipe()
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "freebody.worker", str(r_task), str(w_res)],
+                pass_fds=(r_task, w_res), stdin=subprocess.DEVNULL, stdout=2,  # stray prints: to stderr
+                process_group=0)
+        finally:
+            os.close(r_task)
+            os.close(w_res)
+        self.to_worker = Connection(w_task, readable=False)
+        self.from_worker = Connection(r_res, writable=False)
+        self.ready = False
+        self.task: Task | None = None
+        self.started_at = 0.0
+        self.group: tuple | None = None
+        try:
+            self.to_worker.send(("init", options))
+        except OSError:  # died at once: seen as EOF on from_worker
+            pass
+
+    def send(self, task: Task) -> None:
+        self.to_worker.send(("run", task.run))
+        self.task, self.group, self.started_at = task, task.group, time.monotonic()
+
+    def kill(self) -> int | None:
+        """Kill the worker (and anything it started) and reap it; its exit status."""
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass
+        return self.reap()
+
+    def reap(self) -> int | None:
+        for c in (self.to_worker, self.from_worker):
+            try:
+                c.close()
+            except OSError:
+                pass
+        try:
+            return self.proc.wait(KILL_WAIT_S)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            return self.proc.wait()
+
+    def stop(self) -> None:
+        """Ask an idle worker to exit; kill it if it does not."""
+        try:
+            self.to_worker.send(("exit",))
+            self.proc.wait(KILL_WAIT_S)
+        except (OSError, subprocess.TimeoutExpired):
+            pass
+        self.kill()
+
+
+class LocalPool:
+    """Up to ``jobs`` worker processes, reused across runs and across calls of :meth:`run`.
+
+    timeout : per-run time limit, s, or None; a run past it is killed and ``failed``.
+    engines : engines whose adapters the workers import when they start (as the parent has).
+    share_truths : share truths and reference maps between workers through a temporary directory.
+    registry : the adapter registry the workers use (default: this process's,
+        :data:`freebody.adapters.base.ENGINES`, so an engine registered at run time works there too).
+    """
+
+    def __init__(self, jobs: int, timeout: float | None = None, engines=(), share_truths: bool = True,
+                 registry: dict | None = None):
+        from .adapters import base
+
+        self.jobs = max(1, int(jobs))
+        self.timeout = timeout
+        self.workers: list[Worker] = []
+        self.store = tempfile.mkdtemp(prefix="freebody-truths-") if share_truths else None
+        self.options = {"sys_path": list(sys.path), "engines": dict(base.ENGINES if registry is None else registry),
+                        "preimport": list(engines), "store": self.store}
+        self._start_failures = 0
+
+    # -- the event loop --
+    def run(self, tasks: list[Task], on_done: OnDone) -> None:
+        """Execute the tasks; ``on_done(index, payload)`` as each finishes (in completion order)."""
+        pending = list(tasks)
+        finished: set[int] = set()
+        truth_ready: set[int] = set()  # runs whose truth is computed (reported "started")
+        left_in_group: dict[tuple, int] = {}
+        for t in tasks:
+            left_in_group[t.group] = left_in_group.get(t.group, 0) + 1
+
+        def done(task: Task, payload: dict) -> None:
+            finished.add(task.index)
+            left_in_group[task.group] -= 1
+            if left_in_group[task.group] == 0:
+                self._forget_group(task.group)
+            on_done(task.index, payload)
+
+        while pending or any(w.task for w in self.workers):
+            self._staff(len(pending) + sum(1 for w in self.workers if w.task))
+            if not self.workers:  # no worker could be started: fail what is left, loudly
+                for t in pending:
+                    done(t, failed_payload(t.run.spec, "could not start a worker process "
+                                                       "(see the messages above)", 0.0))
+                return
+            for w in self.workers:
+                if w.ready and w.task is None and pending:
+                    t = self._pick(w, pending, finished | truth_ready, finished)
+                    if t is None:
+                        continue
+                    pending.remove(t)
+                    try:
+                        w.send(t)
+                    except OSError:  # died while idle: run the task elsewhere
+                        pending.insert(0, t)
+                        w.task = None
+            busy = [w for w in self.workers if w.task]
+            wait_s = None
+            if self.timeout is not None and busy:
+                now = time.monotonic()
+                wait_s = max(0.0, min(w.started_at + self.timeout for w in busy) - now)
+            for conn in wait([w.from_worker for w in self.workers], wait_s):
+                w = next(w for w in self.workers if w.from_worker is conn)
+                try:
+                    msg = conn.recv()
+                except (EOFError, OSError):
+                    self._lost(w, done)
+                    continue
+                if msg[0] == "ready":
+                    w.ready = True
+                    self._start_failures = 0
+                elif msg[0] == "started":  # the time limit counts from here
+                    truth_ready.add(msg[1])
+                    w.started_at = time.monotonic()
+                elif msg[0] == "done":
+                    task, w.task = w.task, None
+                    done(task, msg[2])
+            if self.timeout is not None:
+                now = time.monotonic()
+                for w in list(self.workers):
+                    if w.task is not None and now - w.started_at >= self.timeout:
+                        task, wall = w.task, now - w.started_at
+                        w.kill()
+                        self.workers.remove(w)
+                        done(task, failed_payload(task.run.spec, f"timed out after {self.timeout:g} s "
+                                                                 f"(its worker process was killed)", wall))
+
+    def _pick(self, w: Worker, pending: list[Task], has_truth: set[int], finished: set[int]) -> Task | None:
+        """The first ready task of the worker's current group, else the first ready task."""
+        first = None
+        for t in pending:
+            if t.deps <= finished and (t.truth_of is None or t.truth_of in has_truth):
+                if t.group == w.group:
+                    return t
+                if first is None:
+                    first = t
+        return first
+
+    def _staff(self, needed: int) -> None:
+        """Start workers up to min(jobs, needed)."""
+        while len(self.workers) < min(self.jobs, needed):
+            if self._start_failures >= WORKER_START_ATTEMPTS:
+                return
+            try:
+                self.workers.append(Worker(self.options))
+            except OSError as e:
+                self._start_failures += 1
+                sys.stderr.write(f"freebody: warning: cannot start a worker process: {e}\n")
+
+    def _lost(self, w: Worker, done) -> None:
+        """A worker's pipe closed: it died (crash) or failed to start."""
+        code = w.reap()
+        self.workers.remove(w)
+        if w.task is not None:
+            wall = time.monotonic() - w.started_at
+            done(w.task, failed_payload(w.task.run.spec,
+                                        f"the worker process running this run {describe_exit(code)} "
+                                        f"(a crash in the engine or its adapter)", wall))
+        elif not w.ready:
+            self._start_failures += 1
+            sys.stderr.write(f"freebody: warning: a worker process {describe_exit(code)} while starting\n")
+
+    def _forget_group(self, group: tuple) -> None:
+        if self.store is None:
+            return
+        prefix = group_prefix(*group)
+        for p in Path(self.store).glob(prefix + "*"):
+            try:
+                p.unlink()
+            except OSError:
+                pass
+
+    def close(self, kill: bool = False) -> None:
+        """Stop every worker (kill them if ``kill`` or if busy) and remove the shared directory."""
+        workers, self.workers = self.workers, []
+        for w in workers:
+            if kill or w.task is not None or not w.ready:
+                w.kill()
+            else:
+                w.stop()
+        if self.store is not None:
+            shutil.rmtree(self.store, ignore_errors=True)
+
+    def __enter__(self) -> "LocalPool":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close(kill=exc_type is not None)

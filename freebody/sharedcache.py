@@ -1,0 +1,128 @@
+"""Truth and reference trajectories computed once per (case, dt, steps) and shared between runs.
+
+A run needs its case's truth at its time steps; an engine run also needs the reference maps it is
+compared with (scheme identification: :data:`freebody.runner.SCHEME_CANDIDATES`, plus rk4).  Both
+cost far more than most engine runs, so :class:`GroupTruthCache`
+
+- keeps them in memory for one group (problem, dt, steps) at a time, so memory stays bounded by
+  the largest group, not the whole suite;
+- takes a reference engine run's own trajectory as the reference map of the same name: the
+  reference adapter returns exactly :func:`freebody.reference_impl.integrators.simulate` (a test
+  checks it bit for bit), so identification need not integrate it a second time;
+- optionally shares them between worker processes through a directory (``store``): one ``.npz``
+  file per trajectory, written atomically, so a worker that reads one reads exactly what another
+  computed.
+
+The numbers are the same whichever process computed them: results are identical to a serial run.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .reference_impl.conventions import Trajectory
+from .runner import SCHEME_CANDIDATES, RunOutput, RunSpec, TruthCache
+
+# reference maps a run of the reference engine can stand in for (identify() compares with these)
+SHAREABLE_REFERENCES = (*SCHEME_CANDIDATES, "rk4")
+_FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
+
+
+def group_prefix(problem_key: str, dt: float, steps: int) -> str:
+    """Store file-name prefix of a group (problem, dt, steps)."""
+    return f"{problem_key}_dt{float(dt).hex()}_n{int(steps)}_"
+
+
+def _save(path: Path, tr: Trajectory) -> None:
+    arrays = {f: getattr(tr, f) for f in _FIELDS}
+    if tr.orthonormality_error is not None:
+        arrays["orthonormality_error"] = tr.orthonormality_error
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".npz")
+    os.close(fd)
+    try:
+        np.savez(tmp, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _load(path: Path) -> Trajectory | None:
+    try:
+        with np.load(path) as z:
+            ortho = z["orthonormality_error"] if "orthonormality_error" in z else None
+            return Trajectory(*(z[f] for f in _FIELDS), orthonormality_error=ortho)
+    except (OSError, ValueError, KeyError):  # unreadable: compute it again
+        return None
+
+
+class GroupTruthCache(TruthCache):
+    """A :class:`~freebody.runner.TruthCache` for one group at a time, optionally shared.
+
+    store : directory shared by the workers of one suite, or None (this process only).
+    Call :meth:`enter` before each run and :meth:`offer` after it.
+    """
+
+    def __init__(self, store: Path | None = None):
+        super().__init__()
+        self.store = Path(store) if store is not None else None
+        self._group: tuple | None = None
+        self._keys: dict[int, str] = {}  # id(problem) -> stable key, for store file names
+        self._memo: dict[tuple, Trajectory] = {}
+        self._share = True
+
+    def enter(self, problem, problem_key: str, dt: float, steps: int, share: bool = True) -> None:
+        """Switch to the group (problem, dt, steps); forget the arrays of any other group.
+        ``share``: read and write the store for this group (a group of one run needs no store)."""
+        self._share = share
+        self._keys[id(problem)] = problem_key
+        group = (problem_key, float(dt), int(steps))
+        if group != self._group:
+            super().__init__()
+            self._memo = {}
+            self._group = group
+
+    def get(self, problem, dt: float, steps: int) -> Trajectory:
+        return self._lookup(problem, dt, steps, None, lambda: super(GroupTruthCache, self).get(problem, dt, steps))
+
+    def reference(self, problem, integrator: str, dt: float, steps: int) -> Trajectory:
+        return self._lookup(problem, dt, steps, integrator,
+                            lambda: super(GroupTruthCache, self).reference(problem, integrator, dt, steps))
+
+    def offer(self, spec: RunSpec, out: RunOutput) -> None:
+        """Keep a reference engine run's trajectory as the reference map of the same name."""
+        tr = out.trajectory
+        if (spec.engine != "reference" or spec.precision != "float64"
+                or spec.integrator not in SHAREABLE_REFERENCES or tr is None
+                or len(tr) != spec.steps + 1 or out.result.status not in ("ok", "diverged")):
+            return
+        key = (id(spec.problem), float(spec.dt), int(spec.steps), spec.integrator)
+        if key in self._memo:
+            return
+        self._memo[key] = tr
+        path = self._path(spec.problem, spec.dt, spec.steps, spec.integrator)
+        if path is not None and not path.exists():
+            _save(path, tr)
+
+    def _path(self, problem, dt, steps, integrator) -> Path | None:
+        key = self._keys.get(id(problem))
+        if self.store is None or key is None or not self._share:
+            return None
+        return self.store / f"{group_prefix(key, dt, steps)}{integrator or '_truth'}.npz"
+
+    def _lookup(self, problem, dt, steps, integrator, compute) -> Trajectory:
+        key = (id(problem), float(dt), int(steps), integrator)
+        if key in self._memo:
+            return self._memo[key]
+        path = self._path(problem, dt, steps, integrator)
+        tr = _load(path) if path is not None and path.exists() else None
+        if tr is None:
+            tr = compute()
+            if path is not None:
+                _save(path, tr)
+        self._memo[key] = tr
+        return tr

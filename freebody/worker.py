@@ -1,0 +1,216 @@
+"""A worker process: executes runs sent by :mod:`freebody.executor`, one at a time, until told to stop.
+
+Started as ``python -m freebody.worker READ_FD WRITE_FD`` in its own process group (so a Ctrl-C
+at the terminal reaches only the parent, which stops the workers itself).  It talks to the parent
+over two pipes with :class:`multiprocessing.connection.Connection` (pickled messages), never over
+stdin/stdout, which the engines may write to.
+
+Messages, parent -> worker:
+
+- ``("init", options)`` once: ``options`` holds ``sys_path`` (list or None), ``engines`` (the
+  parent's adapter registry, :data:`freebody.adapters.base.ENGINES`, or None), ``preimport``
+  (engine names whose adapters to import up front, as the parent has) and ``store`` (a directory
+  where truths are shared between workers, or None);
+- ``("run", task)`` for each run: ``task`` is a :class:`RunTask`;
+- ``("exit",)``.
+
+Messages, worker -> parent: ``("ready", pid)`` after init; for each run ``("started", index)`` once
+its truth is ready and its engine starts, then ``("done", index, payload)`` (see :func:`finish`).
+
+Every run goes through :func:`freebody.runner.execute`, exactly as a serial run does.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+from .runner import RunOutput, RunSpec, execute
+from .sharedcache import GroupTruthCache
+from .results import save_trajectory, trajectory_filename
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """One run as sent to a worker.
+
+    index : position of the run in the caller's list of specs (results are ordered by it).
+    problem_key : a name of ``spec.problem`` that is stable across processes (e.g. ``"p3"``).
+    spec : the run.
+    save_dir : directory where the worker writes the trajectory file itself, or None.
+    save_every : keep every ``save_every``-th sample in the saved trajectory (metrics use all).
+    ship_saved : return the thinned arrays to save (when the caller writes the file itself).
+    keep_arrays : return the full trajectory, truth and error series.
+    share : write the group's truths to the shared store (pointless for a group of one run).
+    """
+
+    index: int
+    problem_key: str
+    spec: RunSpec
+    save_dir: str | None = None
+    save_every: int = 1
+    ship_saved: bool = False
+    keep_arrays: bool = False
+    share: bool = True
+
+
+def thin_for_saving(out: RunOutput, every: int):
+    """(trajectory, truth head) thinned exactly as :func:`freebody.results.save_trajectory` thins
+    them, so that saving these with ``every=1`` writes the same arrays."""
+    tr, truth = out.trajectory, out.truth
+    if truth is not None:
+        from .reference_impl.conventions import Trajectory
+
+        n = len(tr)
+        truth = Trajectory(truth.t[:n], truth.position[:n], truth.quaternion_wxyz[:n],
+                           truth.linear_velocity[:n], truth.angular_velocity[:n])
+    if every > 1:
+        tr = tr.thinned(every)
+        truth = truth.thinned(every) if truth is not None else None
+    return tr, truth
+
+
+def finish(out: RunOutput, task: RunTask) -> dict:
+    """The payload of a finished run: ``result`` (RunResult, its ``trajectory`` the file written,
+    if any), ``saved`` ((trajectory, truth) thinned, if ``ship_saved``) and ``arrays``
+    ((trajectory, truth, series), if ``keep_arrays``)."""
+    result = out.result
+    payload: dict = {}
+    if out.trajectory is not None:
+        if task.save_dir is not None:
+            rel = trajectory_filename(result.to_json())
+            save_trajectory(Path(task.save_dir), rel, out.trajectory, out.truth, every=task.save_every)
+            result = replace(result, trajectory=rel)
+        elif task.ship_saved:
+            payload["saved"] = thin_for_saving(out, task.save_every)
+    if task.keep_arrays:
+        payload["arrays"] = (out.trajectory, out.truth, out.series)
+    payload["result"] = result
+    return payload
+
+
+def failed_payload(spec: RunSpec, message: str, wall_time_s: float) -> dict:
+    """The payload of a run that ended without a result of its own (crash, time limit)."""
+    from .reference_impl.truth import truth_kind
+    from .runner import RunResult
+
+    pb = spec.problem
+    result = RunResult(case=pb.name, engine=spec.engine, integrator=spec.integrator,
+                       precision=spec.precision, dt=spec.dt, steps=spec.steps, status="failed",
+                       message=message, truth=truth_kind(pb), metrics={}, final_state=None,
+                       wall_time_s=wall_time_s)
+    return {"result": result}
+
+
+class Runner:
+    """Executes tasks in this process with a truth cache shared per (case, dt) group.
+
+    started : called with the task's index once its truth is ready and its engine starts.
+    """
+
+    def __init__(self, store: str | None = None, started: Callable[[int], None] | None = None):
+        self.cache = GroupTruthCache(Path(store) if store else None)
+        self.started = started
+        self._problems: dict = {}
+
+    def run(self, task: RunTask) -> dict:
+        # one Problem object per key, so the cache (keyed by object) hits across tasks
+        problem = self._problems.setdefault(task.problem_key, task.spec.problem)
+        spec = replace(task.spec, problem=problem) if problem is not task.spec.problem else task.spec
+        self.cache.enter(problem, task.problem_key, spec.dt, spec.steps, share=task.share)
+        self._prepare_truth(spec)
+        if self.started is not None:
+            self.started(task.index)
+        out = execute(spec, self.cache)
+        self.cache.offer(spec, out)
+        return finish(out, task)
+
+
+    def _prepare_truth(self, spec: RunSpec) -> None:
+        """Compute (or load) the group's truth before the engine runs, so that the other runs of
+        the group can start as soon as it exists.  A failure is left for execute() to record;
+        what the oracle prints is discarded."""
+        import numpy as np
+
+        from .capture import capture_output
+
+        try:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"), capture_output():
+                self.cache.get(spec.problem, spec.dt, spec.steps)
+        except Exception:
+            pass
+
+
+def preimport(engines) -> None:
+    """Import the adapters of the available engines among ``engines`` (their import banners are
+    discarded), as the parent did while expanding the runs: so that a run's captured engine output
+    does not depend on whether it was the first run of its engine in its process."""
+    from .adapters.base import is_available, load_adapter
+    from .capture import capture_output
+
+    for name in engines:
+        try:
+            if is_available(name):
+                with capture_output():
+                    load_adapter(name)
+        except Exception:  # the run itself records the failure
+            pass
+
+
+def _watch_parent(ppid: int) -> None:
+    # a parent killed with SIGKILL cannot stop its workers: they stop themselves
+    while True:
+        time.sleep(0.5)
+        if os.getppid() != ppid:
+            os._exit(3)
+
+
+def main(argv: list[str] | None = None) -> int:
+    import signal
+    from multiprocessing.connection import Connection
+
+    argv = sys.argv[1:] if argv is None else argv
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+    conn_in = Connection(int(argv[0]), writable=False)
+    conn_out = Connection(int(argv[1]), readable=False)
+    threading.Thread(target=_watch_parent, args=(os.getppid(),), daemon=True).start()
+    try:
+        _, options = conn_in.recv()
+    except EOFError:
+        return 0
+    if options.get("sys_path"):
+        sys.path[:] = options["sys_path"]
+    if options.get("engines") is not None:
+        from .adapters import base
+
+        base.ENGINES.clear()
+        base.ENGINES.update(options["engines"])
+    preimport(options.get("preimport") or ())
+    runner = Runner(options.get("store"), started=lambda index: conn_out.send(("started", index)))
+    conn_out.send(("ready", os.getpid()))
+    while True:
+        try:
+            msg = conn_in.recv()
+        except EOFError:
+            return 0
+        if msg[0] == "exit":
+            return 0
+        task = msg[1]
+        t0 = time.perf_counter()
+        try:
+            payload = runner.run(task)
+        except Exception as e:  # a bug outside the engine (execute never raises for the engine's)
+            payload = failed_payload(task.spec, f"the worker failed: {type(e).__name__}: {e}",
+                                     time.perf_counter() - t0)
+        try:
+            conn_out.send(("done", task.index, payload))
+        except (BrokenPipeError, OSError):
+            return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,106 @@
+"""Ctrl-C and kills on a real ``python -m freebody run``: nothing lost, nothing half-written, no
+worker left behind."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from freebody.runner import STATUSES
+
+# Four runs: two of 200 steps (dt = 0.5 s) that finish at once, two of 1e5 steps (dt = 1e-3 s)
+# that take tens of seconds in the reference integrators, so they are still running when the
+# signal arrives.
+BASE = ["run", "dzhanibekov", "--engine", "reference", "--integrator", "euler-quat", "--integrator", "rk4",
+        "--duration", "100", "--no-report"]
+FAST = BASE + ["--dt", "0.5"]
+RUN = FAST + ["--dt", "1e-3"]
+STARTUP_BUDGET_S = 60.0  # time allowed for the first run to finish (imports, worker start-up)
+EXIT_BUDGET_S = 30.0  # time allowed to stop after the signal
+WORKER_EXIT_BUDGET_S = 10.0  # orphaned workers notice their parent is gone within ~0.5 s
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
+
+
+def _start(out: Path, jobs: int) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "freebody", *RUN, "--out", str(out), "--jobs", str(jobs)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_finished_runs(proc: subprocess.Popen, n: int) -> list[str]:
+    """Progress lines (one per finished run when stderr is not a terminal) until n runs finished."""
+    lines, t0 = [], time.monotonic()
+    while len(lines) < n:
+        line = proc.stderr.readline()
+        assert line, f"freebody exited early ({proc.wait()}): {lines}"
+        if line.startswith("["):
+            lines.append(line)
+        assert time.monotonic() - t0 < STARTUP_BUDGET_S, lines
+    return lines
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        out += [int(c) for c in (task / "children").read_text().split()]
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def _wait_gone(pids: list[int], budget_s: float) -> list[int]:
+    t0 = time.monotonic()
+    while any(_alive(p) for p in pids) and time.monotonic() - t0 < budget_s:
+        time.sleep(0.1)
+    return [p for p in pids if _alive(p)]
+
+
+@pytest.mark.parametrize("jobs", [1, 2], ids=["serial", "parallel"])
+def test_ctrl_c_keeps_the_finished_runs_marked_incomplete_exit_130(tmp_path, jobs):
+    proc = _start(tmp_path, jobs)
+    try:
+        finished = _wait_for_finished_runs(proc, 1)
+        workers = _children(proc.pid)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=EXIT_BUDGET_S)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err, err
+    doc = json.loads((tmp_path / "results.json").read_text())
+    assert doc["incomplete"] is True
+    assert 1 <= len(finished) <= len(doc["runs"]) < 4
+    assert all(r["status"] in STATUSES for r in doc["runs"])
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
+    assert _wait_gone(workers, EXIT_BUDGET_S) == [], "worker processes left running"
+
+
+def test_a_killed_run_leaves_the_previous_results_and_no_worker(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "freebody", *FAST, "--out", str(tmp_path), "--jobs", "1", "--quiet"],
+                          capture_output=True, text=True, timeout=STARTUP_BUDGET_S)
+    assert done.returncode == 0, done.stderr
+    before = (tmp_path / "results.json").read_bytes()
+    proc = _start(tmp_path, 2)
+    try:
+        _wait_for_finished_runs(proc, 1)
+        workers = _children(proc.pid)
+        assert workers
+        proc.kill()  # SIGKILL: no chance to clean up
+        proc.wait(EXIT_BUDGET_S)
+    finally:
+        proc.kill()
+    assert (tmp_path / "results.json").read_bytes() == before
+    assert json.loads(before)["incomplete"] is False
+    assert _wait_gone(workers, WORKER_EXIT_BUDGET_S) == [], "orphaned workers kept running"
