@@ -15,14 +15,22 @@ from .convergence import fit_orders
 from .results import write_json_atomic
 
 
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_text_atomic(path: Path, text: str) -> None:
-    """Write text via a temporary file in the same directory and a rename."""
+    """Write text via a temporary file in the same directory and a rename.  The file gets the
+    permissions a plain open() would give it (mkstemp's are owner-only)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -70,8 +78,9 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     conv = convergence_of(doc)
     runs = doc.get("runs") or []
     physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}
+    pairs = {c: rd.pairwise(rs, physics[c], out_dir) for c, rs in rd.by_case(runs).items()}
     md_path = out_dir / "report.md"
-    write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir))
+    write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs))
     written = [md_path]
     if html:
         from . import report_plots as plots
@@ -87,7 +96,7 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
                 figures[(case, dt)], n = plots.case_dt(case, dt, at_dt, physics[case], out_dir, all_labels)
                 notes.setdefault(case, []).extend(n)
         html_path = out_dir / "report.html"
-        write_text_atomic(html_path, render_html(doc, conv, physics, figures, notes, out_dir))
+        write_text_atomic(html_path, render_html(doc, conv, physics, figures, notes, out_dir, pairs=pairs))
         written.append(html_path)
     return written
 

@@ -208,28 +208,37 @@ def pair_runs(runs: list[dict]) -> list[tuple[dict, dict]]:
     return out
 
 
+def _end_quantities(fs: dict, physics: CasePhysics | None):
+    """(q (4,), L (3,) kg m^2/s world or None, E J or None, KE J or None) of a final state, or None."""
+    arrs = _state_arrays(fs)
+    if arrs is None:
+        return None
+    q, w, v, x = arrs
+    if physics is None:
+        return q, None, None, None
+    M, I_b = physics.body.mass, physics.body.I_body
+    ke = float(kinetic_energy(M, I_b, q, v, w))
+    return q, angular_momentum(I_b, q, w), ke + float(potential_energy(M, physics.gravity, x)), ke
+
+
 def pairwise(runs: list[dict], physics: CasePhysics | None, out_dir: Path | None = None) -> list[Pair]:
     """Engine-vs-engine differences at the end of one case's runs, largest angle first
     (pairs whose angle is undefined last); only ok runs take part."""
     finals = {id(r): _final(r, out_dir) for r in runs}
+    ends = {k: (_end_quantities(fs, physics) if fs is not None else None) for k, fs in finals.items()}
     rows = []
     for a, b in pair_runs([r for r in runs if finals[id(r)] is not None]):
-        sa, sb = _state_arrays(finals[id(a)]), _state_arrays(finals[id(b)])
-        if sa is None or sb is None:
+        ea, eb = ends[id(a)], ends[id(b)]
+        if ea is None or eb is None:
             rows.append(Pair(float(a["dt"]), label(a), label(b), None, None, None))
             continue
-        angle = number(geodesic_angle(sa[0], sb[0]))
+        angle = number(geodesic_angle(ea[0], eb[0]))
         dL = dE = None
         if physics is not None:
-            M, I_b = physics.body.mass, physics.body.I_body
-            La, Lb = angular_momentum(I_b, sa[0], sa[1]), angular_momentum(I_b, sb[0], sb[1])
-            scale = 0.5 * (np.linalg.norm(La) + np.linalg.norm(Lb))
-            dL = number(np.linalg.norm(La - Lb) / scale) if scale > 0 else None
-            ka, kb = kinetic_energy(M, I_b, sa[0], sa[2], sa[1]), kinetic_energy(M, I_b, sb[0], sb[2], sb[1])
-            Ea = ka + potential_energy(M, physics.gravity, sa[3])
-            Eb = kb + potential_energy(M, physics.gravity, sb[3])
-            kscale = 0.5 * (ka + kb)
-            dE = number(abs(Ea - Eb) / kscale) if kscale > 0 else None
+            scale = 0.5 * (np.linalg.norm(ea[1]) + np.linalg.norm(eb[1]))
+            dL = number(np.linalg.norm(ea[1] - eb[1]) / scale) if scale > 0 else None
+            kscale = 0.5 * (ea[3] + eb[3])
+            dE = number(abs(ea[2] - eb[2]) / kscale) if kscale > 0 else None
         rows.append(Pair(float(a["dt"]), label(a), label(b), angle, dL, dE))
     rows.sort(key=lambda p: (-p.dt, p.angle_rad is None, -(p.angle_rad or 0.0), p.a, p.b))
     return rows
@@ -295,7 +304,8 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, int, float | 
         d = number(m.get("max_orientation_diff_rad"))
         if d is not None:
             slot[1] = d if slot[1] is None else max(slot[1], d)
-    return [(lab, what, n, d) for (lab, what), (n, d) in acc.items()]
+    order = {lab: i for i, lab in enumerate(labels(runs))}
+    return [(lab, what, n, d) for (lab, what), (n, d) in sorted(acc.items(), key=lambda kv: order[kv[0][0]])]
 
 
 def engine_versions(doc: dict) -> list[tuple[str, str, int]]:

@@ -22,7 +22,7 @@ td.skipped { background: #e5e5e5; color: #555; }
 .meta { color: #555; font-size: 13px; } .note { color: #555; font-size: 13px; }
 .warn { background: #fff3cd; border: 1px solid #e0c36b; padding: 0.5em 1em; }
 img { max-width: 100%; height: auto; display: block; margin: 0.5em 0; border: 1px solid #eee; }
-nav a { margin-right: 1em; } details summary { cursor: pointer; color: #0550ae; }
+nav a { margin-right: 0.8em; display: inline-block; } details summary { cursor: pointer; color: #0550ae; }
 .scroll { overflow-x: auto; }
 """
 NUMERIC = {"dt (s)", "orientation max (rad)", "orientation final (rad)", "L max (rel)", "E max (rel)",
@@ -63,7 +63,8 @@ def anchor(case: str) -> str:
 
 
 def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict, notes: dict,
-                out_dir: Path | None = None, source: str = "results.json") -> str:
+                out_dir: Path | None = None, source: str = "results.json",
+                pairs: dict[str, list] | None = None) -> str:
     """The whole report.html.  ``figures``: 'heatmap', 'convergence', 'speed' and (case, dt) -> PNG
     bytes or None; ``notes``: case -> lines about runs that could not be drawn."""
     runs = doc.get("runs") or []
@@ -80,14 +81,15 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
              + ", ".join(f"{n} {s}" for s, n in counts.items()) + ")</p>")
     if doc.get("incomplete"):
         p.append('<p class="warn"><b>Incomplete:</b> the run was interrupted; only the finished runs are shown.</p>')
-    p.append("<nav><b>Cases:</b> " + "".join(f'<a href="#{anchor(c)}">{escape(c)}</a>' for c in cases) + "</nav>")
+    p.append("<nav><b>Cases:</b> " + " ".join(f'<a href="#{anchor(c)}">{escape(c)}</a>' for c in cases) + "</nav>")
     p.append("<h2>Engines</h2>" + table(("engine", "version", "runs"), rd.engine_versions(doc)))
     p.append("<h2>Worst orientation error per case and engine run</h2>"
              '<p class="note">Colour: the largest orientation error (rad, log scale) over time and over the '
              "time steps of the cell's ok runs. Dark: a run diverged; red: a run failed; grey: skipped.</p>")
     p.append(img(figures.get("heatmap"), "heat map"))
     p.append("<h2>Convergence</h2>"
-             '<p class="note">Error against time step (log-log), dotted: the least-squares fit; the legend gives '
+             '<p class="note">Error against time step (log-log) for the cases run at 3 or more time steps '
+             "(else at 2); dotted: the least-squares fit; the legend gives "
              "the observed order p for the orientation and the energy error (sat.: the errors saturate, "
              "at order pi or at the truth's accuracy floor, so no order is meaningful).</p>")
     p.append(img(figures.get("convergence"), "convergence"))
@@ -120,9 +122,11 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
         p.append("<h3>Observed order (error ~ dt<sup>p</sup>)</h3>" + (
             table(("engine run", "metric", "order p", "dts fitted (s)", "note"), md.convergence_rows(mine)) if mine
             else '<p class="note">No engine run of this case ran at 3 or more time steps: no order fitted.</p>'))
-        pairs = rd.pairwise(case_runs, ph, out_dir)
+        case_pairs = (pairs or {}).get(case)
+        if case_pairs is None:
+            case_pairs = rd.pairwise(case_runs, ph, out_dir)
         p.append("<h3>Engines at the end</h3>")
-        if pairs:
+        if case_pairs:
             p.append('<p class="note">Final states of runs of different engines: orientation angle, '
                      "|L<sub>a</sub> - L<sub>b</sub>| / mean |L|, |E<sub>a</sub> - E<sub>b</sub>| / mean KE; "
                      "largest angle first.</p>")
@@ -131,7 +135,7 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
                          "(pass <code>--case PATH</code> to <code>freebody report</code>).</p>")
             p.append(table(("dt (s)", "run A", "run B", "orientation (rad)", "L (rel)", "E (rel)"),
                            [(f"{q.dt:g}", q.a, q.b, rd.num(q.angle_rad), rd.num(q.dL_rel), rd.num(q.dE_rel))
-                            for q in pairs], fold="engine-vs-engine differences"))
+                            for q in case_pairs], fold="engine-vs-engine differences"))
         else:
             p.append('<p class="note">No two engines both finished a run of this case at the same time step.</p>')
         p.append("<h3>Errors and angular velocity against time</h3>")

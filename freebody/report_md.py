@@ -99,7 +99,8 @@ def front_matter(doc: dict, source: str) -> list[str]:
 
 
 def case_section(case: str, runs: list[dict], convergence: list[dict],
-                 physics: rd.CasePhysics | None, out_dir: Path | None) -> list[str]:
+                 physics: rd.CasePhysics | None, out_dir: Path | None,
+                 pairs: list[rd.Pair] | None = None) -> list[str]:
     out = [f"## Case `{case}`", ""]
     if physics is not None:
         out += [physics.description, "", f"Truth: {physics.truth or '?'}.", ""]
@@ -115,7 +116,8 @@ def case_section(case: str, runs: list[dict], convergence: list[dict],
     else:
         out += [f"No engine run of this case ran at {3} or more time steps: no order fitted.", ""]
     out += ["### Engines at the end", ""]
-    pairs = rd.pairwise(runs, physics, out_dir)
+    if pairs is None:
+        pairs = rd.pairwise(runs, physics, out_dir)
     if pairs:
         if physics is None:
             out += ["L and E differences need the case's mass and inertia, which this results.json "
@@ -131,9 +133,11 @@ def case_section(case: str, runs: list[dict], convergence: list[dict],
 
 
 def render_markdown(doc: dict, convergence: list[dict], physics: dict[str, rd.CasePhysics | None],
-                    out_dir: Path | None = None, source: str = "results.json") -> str:
-    """The whole report.md text.  ``physics``: case name -> CasePhysics (or None)."""
+                    out_dir: Path | None = None, source: str = "results.json",
+                    pairs: dict[str, list[rd.Pair]] | None = None) -> str:
+    """The whole report.md text.  ``physics``: case name -> CasePhysics (or None); ``pairs``: case
+    name -> :func:`report_data.pairwise` (computed here when not given)."""
     lines = front_matter(doc, source)
     for case, runs in rd.by_case(doc.get("runs") or []).items():
-        lines += case_section(case, runs, convergence, physics.get(case), out_dir)
+        lines += case_section(case, runs, convergence, physics.get(case), out_dir, (pairs or {}).get(case))
     return "\n".join(lines).rstrip() + "\n"

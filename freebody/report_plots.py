@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from . import report_data as rd
-from .convergence import FITTED_METRICS
+from .convergence import FITTED_METRICS, MIN_POINTS
 
 DPI = 90
-MAX_POINTS = 1500  # samples drawn per line: more is invisible at this size, and slow
+MAX_POINTS = 800  # samples drawn per line: more is invisible at this size, and slow
 LOG_PANEL_TOP = 1e3  # error panels stop here: beyond, a run has blown up (its status says so)
 STATUS_COLOURS = {"diverged": "#222222", "failed": "#b2182b", "skipped": "#d9d9d9"}
 STATUS_TEXT = {"diverged": "div", "failed": "fail", "skipped": "skip"}
@@ -73,14 +73,14 @@ def _legend_in(n: int, ncol: int = 4) -> float:
 
 def _log_axes(ax, x: bool = False, y: bool = False) -> None:
     """Log scale with labels on the decades only (minor tick labels are slow and crowded)."""
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
 
     for on, axis, setter in ((x, ax.xaxis, ax.set_xscale), (y, ax.yaxis, ax.set_yscale)):
         if on:
             setter("log")
             axis.set_major_locator(LogLocator(base=10, numticks=8))
             axis.set_major_formatter(FuncFormatter(_decade))  # plain text: mathtext is slow
-            axis.set_minor_formatter(NullFormatter())
+            axis.set_minor_locator(NullLocator())  # hundreds of minor ticks over 16 decades: slow
 
 
 def _decade(v: float, _pos=None) -> str:
@@ -159,21 +159,39 @@ def _cell_patch(x: float, y: float, colour: str):
 
 
 def convergence(runs: list[dict], entries: list[dict]) -> bytes | None:
-    """Per case with >= 2 time steps: orientation and energy error vs dt (log-log), one line per
-    engine run, the fitted order in the legend (or 'sat.' where the errors saturate)."""
+    """Error vs dt (log-log), one line per engine run.  For the cases run at >= 3 time steps (where
+    orders are fitted): a row per case with the orientation and the energy error and the fitted
+    order in the legend ('sat.' where the errors saturate).  Without such a case: the orientation
+    error of the cases run at 2 time steps, one panel per case (no order)."""
+    n_dts = {c: len(rd.dts(rs)) for c, rs in rd.by_case(runs).items()}
+    fitted = [c for c, n in n_dts.items() if n >= MIN_POINTS]
+    if fitted:
+        return _convergence_rows(runs, entries, fitted)
+    two = [c for c, n in n_dts.items() if n >= 2]
+    if not two:
+        return None
+    return _per_case_grid(runs, two, lambda r: r["dt"], "dt (s)",
+                          f"no order fitted: no case ran at {MIN_POINTS} or more time steps", dt_ticks=True)
+
+
+def _dt_axis(ax, dts: list[float]) -> None:
     from matplotlib.ticker import NullLocator
 
-    cases = [c for c, rs in rd.by_case(runs).items() if len(rd.dts(rs)) >= 2]
-    if not cases:
-        return None
+    ax.set_xticks(dts, [f"{d:g}" for d in dts])  # the dts themselves: often less than a decade apart
+    ax.xaxis.set_minor_locator(NullLocator())
+
+
+def _convergence_rows(runs: list[dict], entries: list[dict], cases: list[str]) -> bytes:
     labs = rd.labels(runs)
     col = colours(labs)
     fits = {(e["case"], rd.label(e), e["metric"]): e for e in entries}
-    fig = _figure(11.0, 3.0 * len(cases) + 0.4)
+    by_case = rd.by_case(runs)
+    row_in = max(3.0, 0.115 * max(len(rd.labels(by_case[c])) for c in cases) + 0.7)  # room for the legend
+    fig = _figure(11.0, row_in * len(cases) + 0.4)
     fig.subplots_adjust(left=0.07, right=0.99, bottom=0.6 / fig.get_figheight(), top=1 - 0.35 / fig.get_figheight(),
                         wspace=0.3, hspace=0.45)
     for row, case in enumerate(cases):
-        case_runs = rd.by_case(runs)[case]
+        case_runs = by_case[case]
         handles = []
         axes = [fig.add_subplot(len(cases), 3, 3 * row + k + 1) for k in range(2)]
         for lab in rd.labels(case_runs):
@@ -196,21 +214,63 @@ def convergence(runs: list[dict], entries: list[dict]) -> bytes | None:
             handles.append((first, f"{lab}  p = {orders[0]} / {orders[1]}"))
         for ax, m in zip(axes, FITTED_METRICS):
             _log_axes(ax, x=True, y=True)
-            case_dts = rd.dts(case_runs)
-            ax.set_xticks(case_dts, [f"{d:g}" for d in case_dts])  # the dts themselves: often < 1 decade
-            ax.xaxis.set_minor_locator(NullLocator())
+            _dt_axis(ax, rd.dts(case_runs))
             ax.set_xlabel("dt (s)", fontsize=8)
             ax.set_ylabel("orientation error max (rad)" if m == FITTED_METRICS[0] else "energy error max (rel)",
                           fontsize=8)
             ax.tick_params(labelsize=7)
             ax.grid(True, which="major", alpha=0.3)
             ax.set_title(case, fontsize=9)
-            if not ax.lines or not any(len(ln.get_xdata()) for ln in ax.lines):
+            if not any(len(ln.get_xdata()) for ln in ax.lines):
                 _empty(ax, "no ok run")
         lax = fig.add_subplot(len(cases), 3, 3 * row + 3)
         lax.axis("off")
         lax.legend([h for h, _ in handles], [t for _, t in handles], loc="center left", fontsize=6.5,
                    title="order p (orientation / energy)", title_fontsize=7, frameon=False)
+    return png_bytes(fig)
+
+
+def _per_case_grid(runs: list[dict], cases: list[str], x_of, xlabel: str, title: str | None = None,
+                   dt_ticks: bool = False) -> bytes:
+    """A grid of panels (3 per row), one per case: orientation error max (log) against x_of(run)
+    (log), one line per engine run through its time steps, one legend for all panels."""
+    labs = rd.labels(runs)
+    col = colours(labs)
+    ncol = min(3, len(cases))
+    nrow = (len(cases) + ncol - 1) // ncol
+    head = 0.35 + (0.35 if title else 0.0)
+    fig = _figure(4.0 * ncol, 3.1 * nrow + _legend_in(len(labs)) + 0.2 + head)
+    handles = {}
+    by_case = rd.by_case(runs)
+    for k, case in enumerate(cases):
+        ax = fig.add_subplot(nrow, ncol, k + 1)
+        case_runs = by_case[case]
+        for lab in rd.labels(case_runs):
+            mine = sorted((r for r in case_runs if rd.label(r) == lab), key=lambda r: float(r["dt"]))
+            x, y = _finite_xy([x_of(r) for r in mine],
+                              [rd.metric(r, "orientation_error_max_rad") if r.get("status") == "ok" else None
+                               for r in mine], log_x=True, log_y=True)
+            if len(x):
+                handles[lab] = ax.plot(x, y, marker="o", markersize=3, linewidth=1, color=col[lab],
+                                       linestyle=linestyle(labs.index(lab), 10 if len(labs) <= 10 else 20))[0]
+        _log_axes(ax, x=True, y=True)
+        if dt_ticks:
+            _dt_axis(ax, rd.dts(case_runs))
+        ax.set_title(case, fontsize=9)
+        ax.set_xlabel(xlabel, fontsize=8)
+        ax.set_ylabel("orientation error max (rad)", fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(True, which="major", alpha=0.3)
+        if not any(len(ln.get_xdata()) for ln in ax.lines):
+            _empty(ax, "no ok run to draw")
+    if title:
+        fig.suptitle(title, fontsize=9, y=1 - 0.12 / fig.get_figheight())
+    if handles:
+        fig.legend([handles[lab] for lab in labs if lab in handles], [lab for lab in labs if lab in handles],
+                   loc="lower center", ncol=4, fontsize=7, frameon=False)
+    h = fig.get_figheight()
+    fig.subplots_adjust(left=0.08, right=0.98, top=1 - head / h, bottom=(_legend_in(len(handles)) + 0.5) / h,
+                        wspace=0.3, hspace=0.5)
     return png_bytes(fig)
 
 
@@ -220,38 +280,7 @@ def speed_accuracy(runs: list[dict]) -> bytes | None:
     cases = list(rd.by_case(runs))
     if not cases:
         return None
-    labs = rd.labels(runs)
-    col = colours(labs)
-    ncol = min(3, len(cases))
-    nrow = (len(cases) + ncol - 1) // ncol
-    fig = _figure(4.0 * ncol, 3.1 * nrow + _legend_in(len(labs)) + 0.4)
-    handles = {}
-    for k, case in enumerate(cases):
-        ax = fig.add_subplot(nrow, ncol, k + 1)
-        case_runs = rd.by_case(runs)[case]
-        for lab in rd.labels(case_runs):
-            mine = sorted((r for r in case_runs if rd.label(r) == lab), key=lambda r: float(r["dt"]))
-            x, y = _finite_xy([rd.wall_per_simulated_s(r) for r in mine],
-                              [rd.metric(r, "orientation_error_max_rad") if r.get("status") == "ok" else None
-                               for r in mine], log_x=True, log_y=True)
-            if len(x):
-                handles[lab] = ax.plot(x, y, marker="o", markersize=3, linewidth=1, color=col[lab],
-                                       linestyle=linestyle(labs.index(lab), 10 if len(labs) <= 10 else 20))[0]
-        _log_axes(ax, x=True, y=True)
-        ax.set_title(case, fontsize=9)
-        ax.set_xlabel("wall time per simulated second (s/s)", fontsize=8)
-        ax.set_ylabel("orientation error max (rad)", fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.grid(True, which="major", alpha=0.3)
-        if not any(len(ln.get_xdata()) for ln in ax.lines):
-            _empty(ax, "no ok run with a wall time")
-    if handles:
-        fig.legend([handles[lab] for lab in labs if lab in handles], [lab for lab in labs if lab in handles],
-                   loc="lower center", ncol=4, fontsize=7, frameon=False)
-    h = fig.get_figheight()
-    fig.subplots_adjust(left=0.08, right=0.98, top=1 - 0.35 / h, bottom=(_legend_in(len(handles)) + 0.5) / h,
-                        wspace=0.3, hspace=0.5)
-    return png_bytes(fig)
+    return _per_case_grid(runs, cases, rd.wall_per_simulated_s, "wall time per simulated second (s/s)")
 
 
 # --- per case and dt ------------------------------------------------------------------------------
