@@ -52,6 +52,7 @@ def write_json_atomic(path: Path, data: dict) -> None:
     text = json.dumps(_sanitize(data), sort_keys=True, indent=1, allow_nan=False) + "\n"
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a results file is an ordinary file
         with os.fdopen(fd, "w") as f:
             f.write(text)
             f.flush()
@@ -61,6 +62,12 @@ def write_json_atomic(path: Path, data: dict) -> None:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def results_document(runs: list[dict], engines: dict[str, str | None], incomplete: bool = False,
@@ -103,6 +110,7 @@ def save_trajectory(out_dir: Path, relname: str, tr: Trajectory, truth: Trajecto
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
     os.close(fd)
     try:
+        os.chmod(tmp, 0o666 & ~_umask())
         np.savez_compressed(tmp, **arrays)
         os.replace(tmp, path)
     except BaseException:

@@ -218,7 +218,8 @@ def test_python_api_returns_arrays_and_metrics():
 def test_same_inputs_give_the_same_numbers(tmp_path):
     docs = []
     for i in range(2):
-        main(["run", "quiz", "projectile", "--engine", "reference", "--duration", "0.2", "--out", str(tmp_path / str(i)), "--quiet"])
+        main(["run", "quiz", "projectile", "--engine", "reference", "--duration", "0.2", "--out", str(tmp_path / str(i)),
+              "--quiet", "--no-report"])
         doc = json.loads((tmp_path / str(i) / "results.json").read_text())
         docs.append([{k: v for k, v in r.items() if k != "wall_time_s"} for r in doc["runs"]])
     assert docs[0] == docs[1]
