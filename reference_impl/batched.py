@@ -435,7 +435,7 @@ def _run_semi_implicit(p: dict, h: float, steps: int, rec: _Recorder, implicit: 
     W7[0:3] = p["w_p"]
     W7[3:6] = W7[0:3]
     W7[6] = W7[0]
-    W, W05, W12, W13, W14, W24, W25 = W7[0:3], W7[0:5], W7[0:2], W7[1:3], W7[1:4], W7[2:4], W7[2:5]
+    W, W05, W12, W14, W24, W25 = W7[0:3], W7[0:5], W7[0:2], W7[1:4], W7[2:4], W7[2:5]
     W35, W57 = W7[3:5], W7[5:7]
     I = _full(p["I_p"], B)                                   # (3, B) kg m^2, principal moments
     dv = _full(h * (p["f"] / p["M"] + p["g"]), B)            # (3, B) m/s per step
@@ -443,11 +443,12 @@ def _run_semi_implicit(p: dict, h: float, steps: int, rec: _Recorder, implicit: 
     # explicit: h I^-1 (-w x I w) = h ((I2 - I3)/I1 wy wz, (I3 - I1)/I2 wz wx, (I1 - I2)/I3 wx wy)
     gyro = h * np.stack([(I[1] - I[2]) / I[0], (I[2] - I[0]) / I[1], (I[0] - I[1]) / I[2]])
     implicit_dw = _ImplicitGyro(I, h, W7) if implicit else None
-    dw, t3, t3b, t4, t2 = np.empty((3, B)), np.empty((3, B)), np.empty((3, B)), np.empty((4, B)), np.empty((2, B))
+    dw, t3, t3b = np.empty((3, B)), np.empty((3, B)), np.empty((3, B))
+    t4, t2 = np.empty((4, B)), np.empty((2, B))
     z, d, n = np.empty(B), np.empty(B), np.empty(B)
     # E = (s, phi) proportional to Exp(phi), phi = h w_p, rows (s, x, y, z, x, y)
     E6 = np.empty((6, B))
-    s, E04, phi, phi5, E24, E25, E35, E36 = E6[0], E6[0:4], E6[1:4], E6[1:6], E6[2:4], E6[2:5], E6[3:5], E6[3:6]
+    s, E04, phi, phi5, E25, E36 = E6[0], E6[0:4], E6[1:4], E6[1:6], E6[2:5], E6[3:6]
 
     def views(Q6):
         return (Q6, Q6[0], Q6[0:4], Q6[1:4], Q6[2:5], Q6[3:6], Q6[4:6], Q6[1:3])
@@ -485,8 +486,8 @@ def _run_semi_implicit(p: dict, h: float, steps: int, rec: _Recorder, implicit: 
         add(t3[0], t3[1], out=z)
         add(z, t3[2], out=z)
         _exp_scalar_part(z, phi5, s)
-        Q6, qw, q04, qv, q25, q36, q46, q13 = qa
-        R6, rw, r04, rv, _, _, r46, r13 = qb
+        _, qw, _, qv, q25, q36, _, _ = qa
+        _, rw, r04, rv, _, _, r46, r13 = qb
         # (row by row: numpy's ufuncs are several times slower on a broadcast (B,) operand)
         for i in range(4):
             mul(E04[i], qw, out=r04[i])                      # (q_w s, q_w phi)
