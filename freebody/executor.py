@@ -303,9 +303,11 @@ class LocalPool:
         self.workers.remove(w)
         if w.task is not None:
             wall = time.monotonic() - w.started_at
+            why = ("killed from outside, e.g. by the kernel when out of memory"
+                   if code == -signal.SIGKILL else "a crash in the engine or its adapter")
             done(w.task, failed_payload(w.task.run.spec,
-                                        f"the worker process running this run {describe_exit(code)} "
-                                        f"(a crash in the engine or its adapter)", wall))
+                                        f"the worker process running this run {describe_exit(code)} ({why})",
+                                        wall))
         elif not w.ready:
             self._start_failures += 1
             sys.stderr.write(f"freebody: warning: a worker process {describe_exit(code)} while starting\n")

@@ -146,8 +146,12 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
         if local and jobs == 1 and timeout is None:
             run_serial(tasks, on_done)
         elif local:
-            with LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines) as pool:
+            pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines)
+            try:
                 pool.run(tasks, on_done)
+            finally:
+                with _interrupts_deferred():  # a second Ctrl-C must not leave workers behind
+                    pool.close(kill=sys.exc_info()[0] is not None)
         else:
             from .dask_executor import run_dask
 
