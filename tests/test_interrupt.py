@@ -14,12 +14,11 @@ import pytest
 
 from freebody.runner import STATUSES
 
-# Four runs: two of 200 steps (dt = 0.5 s) that finish at once, two of 1e5 steps (dt = 1e-3 s)
-# that take tens of seconds in the reference integrators, so they are still running when the
-# signal arrives.
+# Four runs: two of 200 steps (dt = 5 s) that finish at once, two of 1e6 steps (dt = 1e-3 s)
+# whose truth alone takes seconds, so they are still running when the signal arrives.
 BASE = ["run", "dzhanibekov", "--engine", "reference", "--integrator", "euler-quat", "--integrator", "rk4",
-        "--duration", "100", "--no-report"]
-FAST = BASE + ["--dt", "0.5"]
+        "--duration", "1000", "--no-report"]
+FAST = BASE + ["--dt", "5"]
 RUN = FAST + ["--dt", "1e-3"]
 STARTUP_BUDGET_S = 60.0  # time allowed for the first run to finish (imports, worker start-up)
 EXIT_BUDGET_S = 30.0  # time allowed to stop after the signal
