@@ -21,7 +21,15 @@ MuJoCo's conventions and what this adapter converts:
 - ``xpos``/``xquat`` are one step stale after ``mj_step``: the state is read from ``qpos``/``qvel``.
 - Instability: MuJoCo counts "Nan, Inf or huge value" warnings in ``data.warning`` and by default
   resets the body to ``qpos0`` at rest and carries on.  The adapter disables that auto-reset (so the
-  last sample shows the blown-up state) and reports any increase of the watched warning counters.
+  last sample shows the blown-up state) and reports any increase of the watched warning counters,
+  at the step that raised it.
+- simulate() is shaped for speed (see its docstring): stretches of steps whose loads do not depend
+  on the state run in C through ``mujoco.rollout`` (which stops at the first warning); the Python
+  loop used under state-dependent loads reads the counters once per chunk of steps and replays a
+  chunk whose counters moved, from a saved state, to find the step.  The trajectory, divergence
+  time and counters are those of the step-by-step loop; only MuJoCo's printed log can differ (a
+  chunk's steps after the bad one may print further warnings, e.g. BADQVEL, before being
+  discarded).
 
 Engine defaults this adapter changes (each recorded in ``settings`` and read back): ``timestep``
 (0.002 -> dt), ``gravity`` ((0, 0, -9.81) -> the case's), ``integrator`` (Euler -> the chosen one),
@@ -37,6 +45,11 @@ from typing import ClassVar
 
 import mujoco
 import numpy as np
+
+try:  # mujoco.rollout: many steps in one C call (simulate's fast path); absent in old releases
+    from mujoco.rollout import Rollout as _Rollout
+except ImportError:  # pragma: no cover - MuJoCo < 3.1
+    _Rollout = None
 
 from ..reference_impl.conventions import (Trajectory, angular_velocity_body_from_world,
                                           angular_velocity_world_from_body)
@@ -63,6 +76,26 @@ _WATCHED_WARNINGS: tuple[str, ...] = ("mjWARN_BADQACC", "mjWARN_BADQVEL", "mjWAR
 _TRIANGLE_ROUNDOFF = 1e-12
 
 _BODY = 1  # body id of the free body (0 is the world)
+
+# simulate() is shaped for speed (MuJoCo's step of a lone body is only ~2 us):
+# - a stretch of steps whose loads do not depend on the state (none, or a constant world wrench)
+#   and is at least this long goes through mujoco.rollout, which steps in C (~1.8 us/step against
+#   ~2.4 for a Python loop over mj_step); a shorter stretch is not worth its set-up (~10 us);
+_ROLLOUT_MIN_STEPS = 64
+# - the Python loop (state-dependent loads) reads the warning counters once every this many
+#   steps, not after every step (four counter reads cost ~0.3 us/step); when one moved, the chunk
+#   is replayed step by step from a saved state to find the step that raised it.
+_CHECK_EVERY = 64
+
+_FULLPHYSICS = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+# What a replayed chunk restores: the full physics state, the solver's warm start and the applied
+# wrench (everything mj_step reads that the loop changes).
+_CHECKPOINT_SPEC = (_FULLPHYSICS | int(mujoco.mjtState.mjSTATE_WARMSTART)
+                    | int(mujoco.mjtState.mjSTATE_XFRC_APPLIED))
+# rollout's control_spec: with XFRC_APPLIED in it and no control array, rollout keeps the
+# xfrc_applied already in data (without it, rollout zeroes xfrc_applied); ctrl and qfrc_applied
+# are zeroed (unused here).
+_ROLLOUT_CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
 
 
 def _fmt(a) -> str:
@@ -165,6 +198,16 @@ class MujocoAdapter(Adapter):
 
         self._warnings = [d.warning[int(getattr(mujoco.mjtWarning, w))] for w in _WATCHED_WARNINGS]
         self._warning_counts = [w.number for w in self._warnings]
+        self._all_warnings = [d.warning[i] for i in range(int(mujoco.mjtWarning.mjNWARNING))]
+        # Layout of an mjSTATE_FULLPHYSICS row (time, qpos, qvel, ...): rollout's output rows.
+        self._nstate = mujoco.mj_stateSize(m, _FULLPHYSICS)
+        n_time = mujoco.mj_stateSize(m, int(mujoco.mjtState.mjSTATE_TIME))
+        n_time_qpos = mujoco.mj_stateSize(
+            m, int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS))
+        self._qpos_cols = slice(n_time, n_time_qpos)                  # 7 columns
+        self._qvel_cols = slice(n_time_qpos, n_time_qpos + m.nv)      # 6 columns
+        self._checkpoint = np.empty(mujoco.mj_stateSize(m, _CHECKPOINT_SPEC))
+        self._roller = None  # mujoco.rollout.Rollout, made on first use
         self._xfrc = d.xfrc_applied[_BODY]  # (6,) view: force (3,) N world, torque (3,) N m world
         self._torque = self._xfrc[3:6]      # (3,) view: torque about the COM, N m, world
         self._x = d.qpos[0:3]               # (3,) view: COM position, m, world
@@ -222,53 +265,147 @@ class MujocoAdapter(Adapter):
         return msg
 
     def simulate(self, steps: int) -> Trajectory:
-        """The base loop with minimal per-step work: loads rewritten only when they change or
-        depend on the state, raw qpos/qvel copied into preallocated (steps + 1, 7) and
-        (steps + 1, 6) arrays, the frame conversion done once for the whole run."""
-        m, d = self.model, self.data
-        step = mujoco.mj_step
+        """The base loop (same steps, loads and warnings), shaped for speed.
+
+        Every step's raw qpos/qvel land in one preallocated (steps + 1, nstate) array of
+        mjSTATE_FULLPHYSICS rows (time, qpos (7), qvel (6)); the frame conversion is done once for
+        the whole run.  The steps go stretch by stretch, a stretch being steps with one set of
+        active loads: the wrench is written at its start and rewritten before every step only
+        when it depends on the state.  A stretch with a constant wrench (or none) of at least
+        _ROLLOUT_MIN_STEPS steps runs in C through mujoco.rollout; the others run in a Python
+        loop over mj_step that reads the warning counters every _CHECK_EVERY steps.  Both report
+        a watched warning at the step that raised it, as the base loop does (EngineDiverged with
+        the trajectory up to and including that step's sample).
+        """
+        k0 = self.k
+        d = self.data
+        S = np.empty((steps + 1, self._nstate))  # row i: state at t = (k0 + i) dt
+        Q, V = S[:, self._qpos_cols], S[:, self._qvel_cols]  # (steps + 1, 7), (steps + 1, 6) views
+        Q[0], V[0] = d.qpos, d.qvel
+        for seg, ka, kb in self._stretches(k0, k0 + steps):
+            self._write_wrench(seg)
+            if (not seg.state_dependent and kb - ka >= _ROLLOUT_MIN_STEPS
+                    and _Rollout is not None):
+                bad = self._rollout(seg, S, ka - k0, kb - ka)
+            else:
+                bad = self._loop(seg, Q, V, ka - k0, kb - ka)
+            if bad is not None:
+                i, reason = bad  # the warning was raised by the step ending at row i
+                self.k = k0 + i
+                raise EngineDiverged(self.k * self.dt, reason,
+                                     _trajectory(Q[:i + 1], V[:i + 1], self.dt, k0))
+        self.k = k0 + steps
+        self._xfrc[:] = 0.0
+        return _trajectory(Q, V, self.dt, k0)
+
+    def _stretches(self, k_start: int, k_end: int):
+        """(segment, ka, kb): the steps k_start <= k < k_end cut where the active loads change."""
+        for seg in self._segments:
+            ka, kb = max(seg.k0, k_start), min(seg.k1, k_end)
+            if ka < kb:
+                yield seg, ka, int(kb)
+
+    def _loop(self, seg: "_Segment", Q: np.ndarray, V: np.ndarray, i0: int, n: int):
+        """n steps by a Python loop over mj_step into rows i0 + 1 .. i0 + n of Q (N, 7) and
+        V (N, 6) (raw qpos, qvel); the wrench for the first step is already written.  Returns
+        (row, reason) of the first step that raised a watched warning, else None."""
+        m, d, step = self.model, self.data, mujoco.mj_step
         qpos, qvel = d.qpos, d.qvel
-        Q = np.empty((steps + 1, 7))   # [x (3) m world, q (4) wxyz body -> world]
-        V = np.empty((steps + 1, 6))   # [v (3) m/s world, w (3) rad/s BODY]
-        Q[0], V[0] = qpos, qvel
-        acc, wvel, wpos, winert = self._warnings
-        n_acc, n_vel, n_pos, n_inert = self._warning_counts
-        k = 0
-        try:
-            for seg in self._segments:
-                k1 = min(seg.k1, steps)
-                if seg.k0 >= k1:
-                    continue
-                dependent = seg.state_dependent
+        dependent, write = seg.state_dependent, self._write_wrench
+        warnings, counts = self._warnings, self._warning_counts
+        for c0 in range(i0, i0 + n, _CHECK_EVERY):
+            c1 = min(c0 + _CHECK_EVERY, i0 + n)
+            mujoco.mj_getState(m, d, self._checkpoint, _CHECKPOINT_SPEC)
+            for i in range(c0, c1):
+                if dependent and i > i0:
+                    write(seg)
+                step(m, d)
+                Q[i + 1] = qpos
+                V[i + 1] = qvel
+            if any(w.number != c for w, c in zip(warnings, counts)):
+                return self._replay(seg, Q, V, i0, c0, c1)
+        return None
+
+    def _replay(self, seg: "_Segment", Q: np.ndarray, V: np.ndarray, i0: int, c0: int, c1: int):
+        """A watched counter moved during the chunk of rows c0 + 1 .. c1: restore the state saved
+        at its start and step again, one step at a time, to the step that raises the warning.
+        Returns (row, reason) and leaves data, the counters and self._warning_counts as the base
+        loop would after that step.
+
+        The counters are left at their moved values during the replay (MuJoCo prints a warning's
+        text only when its counter is zero, so it is not printed twice) and set afterwards to
+        their values before the chunk plus the replayed step's increments."""
+        m, d, step = self.model, self.data, mujoco.mj_step
+        qpos, qvel = d.qpos, d.qvel
+        warnings = self._warnings
+        after_chunk = [w.number for w in warnings]
+        mujoco.mj_setState(m, d, self._checkpoint, _CHECKPOINT_SPEC)
+        for i in range(c0, c1):
+            if seg.state_dependent and i > i0:
                 self._write_wrench(seg)
-                for k in range(seg.k0, k1):
-                    if dependent and k > seg.k0:
-                        self._write_wrench(seg)
-                    step(m, d)
-                    Q[k + 1] = qpos
-                    V[k + 1] = qvel
-                    if (acc.number != n_acc or wvel.number != n_vel or wpos.number != n_pos
-                            or winert.number != n_inert):
-                        self.k = k + 1
-                        raise _Unstable(self.instability())
-            self.k = steps
-            self._xfrc[:] = 0.0
-        except _Unstable as e:
-            raise EngineDiverged((k + 1) * self.dt, str(e), _trajectory(Q[:k + 2], V[:k + 2], self.dt))
-        return _trajectory(Q, V, self.dt)
+            step(m, d)
+            if not (np.array_equal(Q[i + 1], qpos, equal_nan=True)
+                    and np.array_equal(V[i + 1], qvel, equal_nan=True)):
+                raise RuntimeError("mujoco: replaying a chunk from its saved state gave another "
+                                   f"state at step {i + 1} (the replay does not restore enough)")
+            now = [w.number for w in warnings]
+            if now != after_chunk:
+                for w, before, moved, cur in zip(warnings, self._warning_counts, after_chunk, now):
+                    w.number = before + (cur - moved)
+                return i + 1, self.instability()
+        raise RuntimeError("mujoco: a warning counter moved during a chunk but not when it was "
+                           "replayed step by step")
+
+    def _rollout(self, seg: "_Segment", S: np.ndarray, i0: int, n: int):
+        """n steps in C by mujoco.rollout into rows i0 + 1 .. i0 + n of S (mjSTATE_FULLPHYSICS
+        rows), with the constant wrench already written in xfrc_applied.  Returns (row, reason)
+        of the step that raised a watched warning, else None.
+
+        rollout starts from the current state and warm start (given explicitly), clears every
+        warning counter before it starts, and stops stepping at the first warning of any kind,
+        repeating the last state (time included) in the remaining rows.  So: the counters are
+        restored afterwards (added back), a watched warning is reported at the last step taken,
+        and a stop on another warning (which the base loop ignores) is finished by the Python
+        loop."""
+        m, d = self.model, self.data
+        if self._roller is None:
+            self._roller = _Rollout(nthread=0)  # nthread 0: runs on this thread, no pool
+        state0 = np.empty((1, self._nstate))
+        mujoco.mj_getState(m, d, state0[0], _FULLPHYSICS)
+        before = [w.number for w in self._all_warnings]
+        out = S[i0 + 1:i0 + 1 + n]
+        self._roller.rollout([m], [d], state0, control_spec=_ROLLOUT_CONTROL_SPEC, nstep=n,
+                             initial_warmstart=d.qacc_warmstart.copy()[None], state=out[None],
+                             skip_checks=True)
+        if not any(w.number for w in self._all_warnings):
+            if any(before):
+                for w, b in zip(self._all_warnings, before):
+                    w.number = b
+            return None
+        time = out[:, 0]
+        stalled = np.flatnonzero(time[1:] == time[:-1])  # rows repeated after rollout stopped
+        taken = int(stalled[0]) + 1 if stalled.size else n
+        for w, b in zip(self._all_warnings, before):
+            w.number += b
+        if any(w.number != c for w, c in zip(self._warnings, self._warning_counts)):
+            return i0 + taken, self.instability()
+        if taken < n:  # stopped by a warning the base loop does not watch: carry on as it would
+            return self._loop(seg, S[:, self._qpos_cols], S[:, self._qvel_cols], i0 + taken,
+                              n - taken)
+        return None
 
     def close(self) -> None:
+        if getattr(self, "_roller", None) is not None:
+            self._roller.close()
+            self._roller = None
         self.model = self.data = None
 
 
-class _Unstable(Exception):
-    pass
-
-
-def _trajectory(Q: np.ndarray, V: np.ndarray, dt: float) -> Trajectory:
-    """Canonical Trajectory from raw free-joint qpos rows (N, 7) and qvel rows (N, 6)."""
+def _trajectory(Q: np.ndarray, V: np.ndarray, dt: float, k0: int = 0) -> Trajectory:
+    """Canonical Trajectory from raw free-joint qpos rows (N, 7) and qvel rows (N, 6), the first
+    at t = k0 dt (also used by the MJX adapter)."""
     q = Q[:, 3:7].copy()
-    return Trajectory(t=np.arange(len(Q)) * dt, position=Q[:, 0:3].copy(), quaternion_wxyz=q,
+    return Trajectory(t=(k0 + np.arange(len(Q))) * dt, position=Q[:, 0:3].copy(), quaternion_wxyz=q,
                       linear_velocity=V[:, 0:3].copy(),
                       angular_velocity=angular_velocity_world_from_body(q, V[:, 3:6]))
 

@@ -390,29 +390,57 @@ class PybulletAdapter(Adapter):
         return np.array(pos), self._body_quat(orn), np.array(v), np.array(w)
 
     def simulate(self, steps: int) -> Trajectory:
-        """As Adapter.simulate, with the engine's tuples collected in lists and converted once.
+        """As Adapter.simulate, shaped for speed (the same engine calls, the same Trajectory).
 
-        PyBullet reports no instability of its own, so nothing raises EngineDiverged here.
+        Shaped for speed because PyBullet's step is only ~3.5 us: the engine's tuples are appended
+        to ONE flat list of floats (13 per sample: position, inertial-frame quaternion xyzw,
+        velocity, angular velocity) and converted by one np.array at the end; four lists of
+        tuples converted by np.array cost ~1.5 us per step, the flat list ~0.2.  Steps on which
+        no load is active (apply_loads would do nothing) skip apply_loads; loaded steps call it as
+        the base loop does.  PyBullet reports no instability of its own, so nothing raises
+        EngineDiverged here.
         """
         pb, cid, b = pybullet, self._cid, self._body
         step, get_pose, get_vel = pb.stepSimulation, pb.getBasePositionAndOrientation, pb.getBaseVelocity
-        apply = self.apply_loads if self.problem.loads else None
-        P, Q, V, W = [], [], [], []
+        apply = self.apply_loads
+        k0 = self.k
+        F: list[float] = []  # (steps + 1) x 13 floats, see above
+        extend = F.extend
         pos, orn = get_pose(b, physicsClientId=cid)
         v, w = get_vel(b, physicsClientId=cid)
-        P.append(pos), Q.append(orn), V.append(v), W.append(w)
-        k0 = self.k
-        for k in range(k0, k0 + steps):
-            if apply is not None:
-                apply(k)
-            step(physicsClientId=cid)
-            pos, orn = get_pose(b, physicsClientId=cid)
-            v, w = get_vel(b, physicsClientId=cid)
-            P.append(pos), Q.append(orn), V.append(v), W.append(w)
+        extend(pos), extend(orn), extend(v), extend(w)
+        for ka, kb, loaded in self._intervals(k0, k0 + steps):
+            if loaded:
+                for k in range(ka, kb):
+                    apply(k)
+                    step(physicsClientId=cid)
+                    pos, orn = get_pose(b, physicsClientId=cid)
+                    v, w = get_vel(b, physicsClientId=cid)
+                    extend(pos), extend(orn), extend(v), extend(w)
+            else:
+                for _ in range(ka, kb):
+                    step(physicsClientId=cid)
+                    pos, orn = get_pose(b, physicsClientId=cid)
+                    v, w = get_vel(b, physicsClientId=cid)
+                    extend(pos), extend(orn), extend(v), extend(w)
         self.k = k0 + steps
-        return Trajectory(t=(k0 + np.arange(steps + 1)) * self.dt, position=np.array(P),
-                          quaternion_wxyz=self._body_quat(np.array(Q)), linear_velocity=np.array(V),
-                          angular_velocity=np.array(W))
+        A = np.array(F).reshape(steps + 1, 13)
+        return Trajectory(t=(k0 + np.arange(steps + 1)) * self.dt,
+                          position=np.ascontiguousarray(A[:, 0:3]),
+                          quaternion_wxyz=self._body_quat(A[:, 3:7]),
+                          linear_velocity=np.ascontiguousarray(A[:, 7:10]),
+                          angular_velocity=np.ascontiguousarray(A[:, 10:13]))
+
+    def _intervals(self, k_start: int, k_end: int):
+        """(ka, kb, loaded): the steps k_start <= k < k_end cut where the active set of loads
+        changes; loaded says whether any load acts on ka <= k < kb."""
+        bounds = self._load_bounds
+        ka = k_start
+        while ka < k_end:
+            i = bisect.bisect_right(bounds, ka)
+            kb = min(bounds[i], k_end) if i < len(bounds) else k_end
+            yield ka, kb, self._plan(ka) is not None
+            ka = kb
 
     def close(self) -> None:
         cid = getattr(self, "_cid", -1)

@@ -12,6 +12,7 @@ import pytest
 mujoco = pytest.importorskip("mujoco", reason="mujoco not installed (pip install 'freebody[engines]')")
 
 from freebody.adapters.base import Adapter, EngineDiverged  # noqa: E402
+from freebody.adapters import mujoco_adapter  # noqa: E402
 from freebody.adapters.mujoco_adapter import MujocoAdapter  # noqa: E402
 from freebody.reference_impl.conventions import angular_momentum  # noqa: E402
 from freebody.reference_impl.integrators import simulate  # noqa: E402
@@ -256,3 +257,124 @@ def test_integrators_and_conventions():
         assert MujocoAdapter.conventions[key]
     with pytest.raises(ValueError):
         MujocoAdapter(_general_problem(), 0.01, "rk4")
+
+
+# --- simulate()'s fast paths (mujoco.rollout, the chunked Python loop) against the base loop ------
+
+def _assert_same_trajectory(a, b):
+    """Bit-for-bit equality (NaN == NaN) of two trajectories, t included."""
+    for field in ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity"):
+        assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
+
+
+def _constant_wrench_loads():
+    """Loads with world-fixed wrenches only (COM forces, world couples), switching on and off."""
+    return (Load(force=np.array([0.5, -1.0, 2.0]), start=0.1, end=0.9),
+            Load(torque=np.array([0.3, -0.2, 0.1]), start=0.4),
+            Load(force=np.array([0.0, 0.2, 0.0]), torque=np.array([0.0, 0.0, -0.5]), steps=1))
+
+
+@pytest.mark.parametrize("integrator", MujocoAdapter.offered_integrators())
+@pytest.mark.parametrize("loaded", [False, True], ids=["load-free", "constant-wrench"])
+def test_rollout_path_equals_base_loop(integrator, loaded, monkeypatch):
+    """Stretches without state-dependent loads run through mujoco.rollout: the same trajectory, bit
+    for bit, as the base loop and as the Python loop over mj_step."""
+    pb = _general_problem(loads=_constant_wrench_loads() if loaded else ())
+    dt, steps = 0.005, 260  # stretches of 20 to 140 steps: some rolled out, some looped
+    a = MujocoAdapter(pb, dt, integrator)
+    fast = a.simulate(steps)
+    assert a._roller is not None  # the rollout path was taken
+    assert not np.any(a.data.xfrc_applied)
+    slow = Adapter.simulate(MujocoAdapter(pb, dt, integrator), steps)
+    _assert_same_trajectory(fast, slow)
+    monkeypatch.setattr(mujoco_adapter, "_ROLLOUT_MIN_STEPS", 10 ** 9)
+    b = MujocoAdapter(pb, dt, integrator)
+    _assert_same_trajectory(b.simulate(steps), slow)
+    assert b._roller is None
+    # not vacuous: the loads do change the motion
+    if loaded:
+        free = MujocoAdapter(_general_problem(), dt, integrator).simulate(steps)
+        assert np.max(np.abs(free.angular_velocity - fast.angular_velocity)) > 1e-3
+
+
+@pytest.mark.parametrize("split", [0, 1, 20, 150])
+def test_simulate_continues_from_current_step(split):
+    """simulate(n1) then simulate(n2) = simulate(n1 + n2): times, loads and states continue."""
+    loads = _push_loads() + _constant_wrench_loads() + (
+        Load(body_torque=np.array([0.0, 0.3, 0.1]), start=0.5, end=0.6),)
+    pb = _general_problem(loads=loads)
+    dt, steps = 0.005, 200
+    whole = MujocoAdapter(pb, dt, "Euler").simulate(steps)
+    a = MujocoAdapter(pb, dt, "Euler")
+    first, second = a.simulate(split), a.simulate(steps - split)
+    assert a.k == steps
+    assert len(first) == split + 1 and len(second) == steps - split + 1
+    assert second.t[0] == whole.t[split]
+    for field in ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity"):
+        joined = np.concatenate([getattr(first, field), getattr(second, field)[1:]])
+        assert np.array_equal(joined, getattr(whole, field)), field
+
+
+def _blow_up_problem(loads=()):
+    return _problem(DZHANIBEKOV_I, [0.1, 50.0, 0.0], loads=loads, duration=30.0)
+
+
+@pytest.mark.parametrize("check_every", [64, 7, 1])
+def test_chunked_loop_reports_divergence_at_the_step(check_every, tmp_path, monkeypatch):
+    """State-dependent loads run in the Python loop, which reads the warning counters once per
+    chunk: the divergence is still reported at the step that raised BADQACC (found by replaying
+    the chunk), with the base loop's time, trajectory, counters and message."""
+    monkeypatch.chdir(tmp_path)  # MuJoCo appends its warnings to ./MUJOCO_LOG.TXT
+    monkeypatch.setattr(mujoco_adapter, "_CHECK_EVERY", check_every)
+    pb = _blow_up_problem(loads=(Load(body_torque=np.array([0.0, 1e-9, 0.0])),))
+    a = MujocoAdapter(pb, 0.01, "Euler")
+    with pytest.raises(EngineDiverged) as fast:
+        a.simulate(3000)
+    b = MujocoAdapter(pb, 0.01, "Euler")
+    with pytest.raises(EngineDiverged) as slow:
+        Adapter.simulate(b, 3000)
+    assert fast.value.t == slow.value.t and fast.value.reason == slow.value.reason
+    assert "BADQACC" in fast.value.reason
+    assert round(fast.value.t / 0.01) % 64 != 0  # the bad step lies inside a chunk of 64
+    _assert_same_trajectory(fast.value.trajectory, slow.value.trajectory)
+    assert a.k == b.k == round(slow.value.t / 0.01)
+    assert [w.number for w in a._all_warnings] == [w.number for w in b._all_warnings]
+    assert np.array_equal(a.data.qvel, b.data.qvel) and a.data.time == b.data.time
+
+
+@pytest.mark.parametrize("path", ["rollout", "python loop"])
+def test_divergence_time_equals_base_loop(path, tmp_path, monkeypatch):
+    """Load-free blow-up through mujoco.rollout (which stops at the warning and repeats the last
+    state) and through the Python loop: the base loop's divergence time and trajectory."""
+    monkeypatch.chdir(tmp_path)
+    if path == "python loop":
+        monkeypatch.setattr(mujoco_adapter, "_ROLLOUT_MIN_STEPS", 10 ** 9)
+    pb = _blow_up_problem()
+    a = MujocoAdapter(pb, 0.01, "Euler")
+    with pytest.raises(EngineDiverged) as fast:
+        a.simulate(3000)
+    assert (a._roller is not None) == (path == "rollout")
+    b = MujocoAdapter(pb, 0.01, "Euler")
+    with pytest.raises(EngineDiverged) as slow:
+        Adapter.simulate(b, 3000)
+    assert fast.value.t == slow.value.t and fast.value.reason == slow.value.reason
+    _assert_same_trajectory(fast.value.trajectory, slow.value.trajectory)
+    assert [w.number for w in a._all_warnings] == [w.number for w in b._all_warnings]
+
+
+def test_rollout_stopped_by_an_unwatched_warning_carries_on(tmp_path, monkeypatch):
+    """mujoco.rollout stops at a warning of ANY kind; one the adapter does not watch (here BADQACC,
+    unwatched for the test) must not end the run: the Python loop finishes it as the base loop
+    would (the state then turns non-finite, as MuJoCo leaves it with auto-reset off)."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(mujoco_adapter, "_WATCHED_WARNINGS", ("mjWARN_INERTIA",))
+    pb = _blow_up_problem()
+    a = MujocoAdapter(pb, 0.01, "Euler")
+    fast = a.simulate(300)
+    assert a._roller is not None
+    b = MujocoAdapter(pb, 0.01, "Euler")
+    slow = Adapter.simulate(b, 300)
+    _assert_same_trajectory(fast, slow)
+    assert np.isnan(fast.angular_velocity[-1]).all()  # stepped on past the blow-up
+    assert a.data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
+    assert [w.number for w in a._all_warnings] == [w.number for w in b._all_warnings]
