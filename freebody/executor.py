@@ -148,6 +148,7 @@ class Worker:
         self.task: Task | None = None
         self.started_at = 0.0
         self.group: tuple | None = None
+        self.kind: tuple | None = None  # (engine, precision) of its last run
         try:
             self.to_worker.send(("init", options))
         except OSError:  # died at once: seen as EOF on from_worker
@@ -156,6 +157,7 @@ class Worker:
     def send(self, task: Task) -> None:
         self.to_worker.send(("run", task.run))
         self.task, self.group, self.started_at = task, task.group, time.monotonic()
+        self.kind = (task.run.spec.engine, task.run.spec.precision)
 
     def kill(self) -> int | None:
         """Kill the worker (and anything it started) and reap it; its exit status."""
@@ -276,15 +278,19 @@ class LocalPool:
                                                                  f"(its worker process was killed)", wall))
 
     def _pick(self, w: Worker, pending: list[Task], has_truth: set[int], finished: set[int]) -> Task | None:
-        """The first ready task of the worker's current group, else the first ready task."""
-        first = None
+        """The first ready task of the worker's current group with the engine and precision of its
+        last run (warm caches: JIT engines compile per precision), else of its current group (the
+        truth in memory), else the first ready task."""
+        found: dict[int, Task] = {}
         for t in pending:
             if t.deps <= finished and (t.truth_of is None or t.truth_of in has_truth):
                 if t.group == w.group:
-                    return t
-                if first is None:
-                    first = t
-        return first
+                    if (t.run.spec.engine, t.run.spec.precision) == w.kind:
+                        return t
+                    found.setdefault(1, t)
+                else:
+                    found.setdefault(2, t)
+        return found.get(1) or found.get(2)
 
     def _staff(self, needed: int) -> None:
         """Start workers up to min(jobs, needed)."""
