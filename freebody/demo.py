@@ -22,7 +22,7 @@ import numpy as np
 
 from .casefile import load_case
 from .reference_impl.conventions import Trajectory, angular_velocity_body_from_world
-from .reference_impl.integrators import INTEGRATORS, integrate_euler_matrix, simulate
+from .reference_impl.integrators import INTEGRATORS, simulate
 from .reference_impl.problem import Problem
 from .reference_impl.rotations import geodesic_angle, matrix_from_quat
 from .reference_impl.truth import truth_trajectory

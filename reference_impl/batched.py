@@ -582,7 +582,7 @@ def _run_rk4(X, Q6, Pm, L5, M, inv_I, dp, dL, h, steps, rec, wk) -> None:
     W5, phi5, e6 = np.empty((5, B)), wk.e6[1:6], wk.e6
     Qs6, Qn6 = np.empty((6, B)), np.empty((6, B))            # stage q, its normalised copy
     Ls5 = np.empty((5, B))
-    Xs, Ps = np.empty((3, B)), np.empty((3, B))
+    Ps = np.empty((3, B))
     kx = [np.empty((3, B)) for _ in range(4)]
     kq = [np.empty((6, B)) for _ in range(4)]
     acc, tmp = np.empty((4, B)), np.empty((4, B))

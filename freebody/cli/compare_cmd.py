@@ -1,20 +1,9 @@
 """``freebody compare BASELINE CURRENT``: what changed between two sets of results; exit 1 on a regression."""
 from __future__ import annotations
 
+from .argtypes import nonnegative_float as _tolerance
+
 ORDER = 50
-
-
-def _tolerance(text: str) -> float:
-    import argparse
-    import math
-
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(x) or x < 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
-    return x
 
 
 def add_parser(sub) -> None:

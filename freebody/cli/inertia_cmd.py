@@ -7,36 +7,17 @@ from __future__ import annotations
 
 ORDER = 40
 
-import argparse
-import math
 from pathlib import Path
 
 from ..errors import InputError
+from .argtypes import integer, positive_float as _positive
+
+_resolution = integer(1, 1024)
 
 DEFAULT_OUT = "reports/latest"
 DEFAULT_RESOLUTION = 32  # --method particles|voxels: cells along the longest bounding-box side
 DEFAULT_COMPARE_MAX = 64  # --compare: the finest resolution (64^3 cells at most: about a second)
 SCHEMA_VERSION = 1  # of inertia_<name>.json
-
-
-def _positive(text: str) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(x) or x <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return x
-
-
-def _resolution(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if n < 1 or n > 1024:
-        raise argparse.ArgumentTypeError(f"must be an integer from 1 to 1024, got {text!r}")
-    return n
 
 
 def add_parser(sub) -> None:

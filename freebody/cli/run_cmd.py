@@ -3,40 +3,15 @@ from __future__ import annotations
 
 ORDER = 20
 
-import sys
 from pathlib import Path
 
 from ..casefile import bundled_case_paths, load_case
 from ..runner import expand, select_engines
 from ..suite import run_specs
 from ..summary import summary_table
+from .argtypes import positive_float as _positive_float, positive_int as _positive_int
 
 DEFAULT_OUT = "reports/latest"
-
-
-def _positive_float(text: str) -> float:
-    import argparse
-    import math
-
-    try:
-        x = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not math.isfinite(x) or x <= 0:
-        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
-    return x
-
-
-def _positive_int(text: str) -> int:
-    import argparse
-
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text!r}")
-    return n
 
 
 def add_parser(sub) -> None:

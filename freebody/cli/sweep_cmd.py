@@ -4,23 +4,12 @@ from __future__ import annotations
 
 ORDER = 40
 
-import argparse
 from pathlib import Path
 
 from ..errors import InputError
-from .run_cmd import _positive_float
+from .argtypes import nonnegative_int as _nonneg_int, positive_float as _positive_float
 
 DEFAULT_OUT = "reports/sweep"
-
-
-def _nonneg_int(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if n < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text!r}")
-    return n
 
 
 def add_parser(sub) -> None:
