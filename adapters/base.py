@@ -146,9 +146,7 @@ class Adapter(ABC):
 
 
 def _truncate(tr: Trajectory, n: int) -> Trajectory:
-    ortho = None if tr.orthonormality_error is None else tr.orthonormality_error[:n]
-    return Trajectory(tr.t[:n], tr.position[:n], tr.quaternion_wxyz[:n], tr.linear_velocity[:n],
-                      tr.angular_velocity[:n], ortho)
+    return tr.head(n)
 
 
 def _plain(v):

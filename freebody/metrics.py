@@ -52,7 +52,7 @@ def energies(problem: Problem, tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
 
 def series(problem: Problem, tr: Trajectory, truth: Trajectory) -> Series:
     n = len(tr)
-    truth = _head(truth, n)
+    truth = truth.head(n)
     I_b = problem.body.I_body
     ori = geodesic_angle(truth.quaternion_wxyz, tr.quaternion_wxyz)
     L = angular_momentum(I_b, tr.quaternion_wxyz, tr.angular_velocity)
@@ -98,7 +98,7 @@ def divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[flo
     their factor x the truth's max (see :mod:`freebody.tolerances`).
     """
     n = len(tr)
-    truth = _head(truth, n)
+    truth = truth.head(n)
     arrays = (tr.position, tr.quaternion_wxyz, tr.linear_velocity, tr.angular_velocity)
     bad = ~np.all(np.concatenate([np.isfinite(a) for a in arrays], axis=1), axis=1)
     first = _first(bad)
@@ -118,13 +118,6 @@ def divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[flo
         if first is not None:
             return float(tr.t[first]), why
     return None
-
-
-def _head(tr: Trajectory, n: int) -> Trajectory:
-    if len(tr) == n:
-        return tr
-    return Trajectory(tr.t[:n], tr.position[:n], tr.quaternion_wxyz[:n], tr.linear_velocity[:n],
-                      tr.angular_velocity[:n])
 
 
 def _first(mask: np.ndarray) -> int | None:

@@ -90,23 +90,29 @@ def trajectory_filename(run: dict) -> str:
     return "trajectories/" + "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in name) + ".npz"
 
 
+def thinned_for_saving(tr: Trajectory, truth: Trajectory | None,
+                       every: int = 1) -> tuple[Trajectory, Trajectory | None]:
+    """(run, truth) as a trajectory file stores them: the truth cut to the run's samples (a
+    diverged run stops early) without orthonormality, both thinned to every ``every``-th sample."""
+    if truth is not None:
+        truth = truth.head(len(tr)).without_orthonormality()
+    if every > 1:
+        tr = tr.thinned(every)
+        truth = truth.thinned(every) if truth is not None else None
+    return tr, truth
+
+
 def save_trajectory(out_dir: Path, relname: str, tr: Trajectory, truth: Trajectory | None,
                     every: int = 1) -> None:
     """Save a run's arrays (thinned to every ``every``-th sample) and its truth's, atomically."""
     path = Path(out_dir) / relname
     path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {}
-    tr_s = tr.thinned(every) if every > 1 else tr
-    for f in _FIELDS:
-        arrays[f] = getattr(tr_s, f)
+    tr_s, truth_s = thinned_for_saving(tr, truth, every)
+    arrays = {f: getattr(tr_s, f) for f in _FIELDS}
     if tr_s.orthonormality_error is not None:
         arrays["orthonormality_error"] = tr_s.orthonormality_error
-    if truth is not None:
-        n = len(tr)
-        truth_head = Trajectory(*(getattr(truth, f)[:n] for f in _FIELDS))
-        truth_s = truth_head.thinned(every) if every > 1 else truth_head
-        for f in _FIELDS:
-            arrays["truth_" + f] = getattr(truth_s, f)
+    if truth_s is not None:
+        arrays.update({"truth_" + f: getattr(truth_s, f) for f in _FIELDS})
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
     os.close(fd)
     try:

@@ -354,8 +354,7 @@ def _prefix_metrics(pb, trajectory, truth, t_div) -> dict:
     n = int(np.searchsorted(trajectory.t, t_div))
     if n < 1:
         return {}
-    head = Trajectory(trajectory.t[:n], trajectory.position[:n], trajectory.quaternion_wxyz[:n],
-                      trajectory.linear_velocity[:n], trajectory.angular_velocity[:n])
+    head = trajectory.head(n).without_orthonormality()
     m, _ = summarize(pb, head, truth)
     return {"orientation_error_max_before_divergence_rad": m["orientation_error_max_rad"]}
 

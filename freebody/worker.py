@@ -61,17 +61,9 @@ class RunTask:
 def thin_for_saving(out: RunOutput, every: int):
     """(trajectory, truth head) thinned exactly as :func:`freebody.results.save_trajectory` thins
     them, so that saving these with ``every=1`` writes the same arrays."""
-    tr, truth = out.trajectory, out.truth
-    if truth is not None:
-        from .reference_impl.conventions import Trajectory
+    from .results import thinned_for_saving
 
-        n = len(tr)
-        truth = Trajectory(truth.t[:n], truth.position[:n], truth.quaternion_wxyz[:n],
-                           truth.linear_velocity[:n], truth.angular_velocity[:n])
-    if every > 1:
-        tr = tr.thinned(every)
-        truth = truth.thinned(every) if truth is not None else None
-    return tr, truth
+    return thinned_for_saving(out.trajectory, out.truth, every)
 
 
 def finish(out: RunOutput, task: RunTask) -> dict:

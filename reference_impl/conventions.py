@@ -160,6 +160,19 @@ class Trajectory:
             orthonormality_error=nan(n, np.nan) if with_orthonormality else None,
         )
 
+    def head(self, n: int) -> "Trajectory":
+        """The first n samples (views, no copy); the trajectory itself when it has n samples."""
+        if len(self.t) == n:
+            return self
+        ortho = None if self.orthonormality_error is None else self.orthonormality_error[:n]
+        return Trajectory(self.t[:n], self.position[:n], self.quaternion_wxyz[:n],
+                          self.linear_velocity[:n], self.angular_velocity[:n], ortho)
+
+    def without_orthonormality(self) -> "Trajectory":
+        """The same samples without the matrix integrators' orthonormality error (as truths have)."""
+        return Trajectory(self.t, self.position, self.quaternion_wxyz, self.linear_velocity,
+                          self.angular_velocity)
+
     def thinned(self, every: int) -> "Trajectory":
         """Every ``every``-th sample, always keeping the last."""
         idx = np.unique(np.r_[np.arange(0, len(self.t), every), len(self.t) - 1])
