@@ -53,6 +53,7 @@ class Adapter(ABC):
       precisions : floating-point precisions offered ("float64" unless the engine says otherwise).
       supports_point_force, supports_body_torque : load kinds the adapter can apply.
       conventions : engine convention facts shown by ``freebody conventions``.
+      compare_with : the engine this one ports, compared run by run (or None).
 
     An instance is one run: ``Adapter(problem, dt, integrator, precision)`` builds the world;
     ``simulate(steps)`` steps it and returns the canonical :class:`Trajectory`.  ``settings``
@@ -67,6 +68,9 @@ class Adapter(ABC):
     supports_point_force: ClassVar[bool] = True
     supports_body_torque: ClassVar[bool] = True
     conventions: ClassVar[dict[str, str]] = {}
+    # Another engine this one ports (e.g. mjx -> mujoco): each run is also compared with that
+    # engine's run of the same integrator and dt (results.json "vs_engine").
+    compare_with: ClassVar[str | None] = None
 
     def __init__(self, problem: Problem, dt: float, integrator: str, precision: str = "float64"):
         self.problem = problem

@@ -276,6 +276,7 @@ class MjxAdapter(Adapter):
     install_hint: ClassVar[str] = "pip install 'freebody[jax]'"
     integrators: ClassVar[tuple[str, ...]] = tuple(_INTEGRATOR_ENUM)
     precisions: ClassVar[tuple[str, ...]] = PRECISIONS
+    compare_with: ClassVar[str | None] = "mujoco"
     conventions: ClassVar[dict[str, str]] = {
         "model": "the MuJoCo adapter's MJCF and MjModel, moved to JAX with mjx.put_model/put_data",
         "quaternion order": "(w, x, y, z), Hamilton, body -> world (qpos[3:7]); no reorder",

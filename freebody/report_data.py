@@ -308,6 +308,27 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, int, float | 
     return [(lab, what, n, d) for (lab, what), (n, d) in sorted(acc.items(), key=lambda kv: order[kv[0][0]])]
 
 
+PORT_COLUMNS = ("case", "engine run", "dt", "against", "max orientation diff (rad)",
+                "final orientation diff (rad)", "own max error vs truth (rad)")
+
+
+def port_comparison(runs: list[dict]) -> list[tuple]:
+    """Rows comparing ported engines' runs (e.g. MJX) with their original engine's float64 run of
+    the same integrator and dt (the run's ``vs_engine``), in run order."""
+    rows = []
+    for r in runs:
+        v = r.get("vs_engine")
+        if not isinstance(v, dict):
+            continue
+        against = f"{v.get('engine')}/{v.get('integrator')}"
+        if v.get("message"):
+            rows.append((r["case"], label(r), f"{r['dt']:g}", against, v["message"], "-", "-"))
+            continue
+        rows.append((r["case"], label(r), f"{r['dt']:g}", against, num(v.get("max_orientation_diff_rad")),
+                     num(v.get("final_orientation_diff_rad")), num(metric(r, "orientation_error_max_rad"))))
+    return rows
+
+
 def engine_versions(doc: dict) -> list[tuple[str, str, int]]:
     """(engine, version or 'not installed', number of runs) for every engine of the document."""
     runs = doc.get("runs") or []

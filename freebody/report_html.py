@@ -106,6 +106,10 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
         table(("engine run", "reproduces", "runs", "max difference (rad)"),
               [(a, b, n, rd.num(d, ".1e")) for a, b, n, d in repro]) if repro
         else '<p class="note">No engine run was compared with the reference maps.</p>'))
+    ports = rd.port_comparison(runs)
+    if ports:
+        p.append("<h2>Ported engines against their originals (e.g. MJX vs C MuJoCo)</h2>"
+                 + table(rd.PORT_COLUMNS, ports))
 
     for case, case_runs in cases.items():
         ph = physics.get(case)

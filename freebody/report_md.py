@@ -95,6 +95,10 @@ def front_matter(doc: dict, source: str) -> list[str]:
                      [(a, b, n, rd.num(d, ".1e")) for a, b, n, d in repro]) if repro
             else "No engine run was compared with the reference maps (only the reference engine ran, "
                  "or no engine run was ok).", ""]
+    ports = rd.port_comparison(runs)
+    if ports:
+        out += ["## Ported engines against their originals (e.g. MJX vs C MuJoCo)", "",
+                md_table(rd.PORT_COLUMNS, ports), ""]
     return out
 
 

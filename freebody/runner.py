@@ -76,6 +76,7 @@ class RunResult:
     diverged_at_s: float | None = None
     trajectory: str | None = None
     engine_output: list = field(default_factory=list)
+    vs_engine: dict | None = None
     # s spent compiling the engine's step (JIT engines, e.g. mjx; 0 when cached; None: no JIT),
     # included in wall_time_s
     compile_time_s: float | None = None
@@ -246,6 +247,17 @@ class TruthCache:
             self._cache[key] = truth_trajectory(problem, dt, steps)
         return self._cache[key]
 
+    def engine_run(self, problem: Problem, engine: str, integrator: str, dt: float, steps: int) -> Trajectory:
+        """Another engine's float64 trajectory of the same case (for ported engines' comparison)."""
+        key = (id(problem), problem.name, dt, steps, engine, integrator)
+        if key not in self._cache:
+            adapter = load_adapter(engine)(problem, dt, integrator)
+            try:
+                self._cache[key] = adapter.simulate(steps)
+            finally:
+                adapter.close()
+        return self._cache[key]
+
     def reference(self, problem: Problem, integrator: str, dt: float, steps: int) -> Trajectory:
         key = (id(problem), problem.name, dt, steps, integrator)
         if key not in self._cache:
@@ -322,14 +334,38 @@ def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> 
         # metrics past a blow-up are meaningless: keep them up to the divergence only
         metrics = {k: (v if k == "rotation_orthonormality_error_max" else None) for k, v in metrics.items()}
         metrics.update(_prefix_metrics(pb, trajectory, truth, diverged_at))
-    matches = None
+    matches = vs_engine = None
     if identify_scheme and spec.engine != "reference" and status == "ok":
         matches = identify(pb, trajectory, spec, cache)
+        if cls.compare_with:
+            vs_engine = compare_with_engine(pb, trajectory, spec, cls.compare_with, cache)
     final = trajectory.state(-1).as_dict() if status == "ok" else None
     result = RunResult(**base, status=status, message=message, metrics=_clean(metrics), final_state=final,
                        wall_time_s=wall, engine_version=version, engine_settings=settings or {},
-                       matches_reference=matches, diverged_at_s=diverged_at, compile_time_s=compile_time)
+                       matches_reference=matches, diverged_at_s=diverged_at, compile_time_s=compile_time,
+                       vs_engine=vs_engine)
     return RunOutput(result, trajectory, truth, series)
+
+
+def compare_with_engine(pb: Problem, trajectory: Trajectory, spec: RunSpec, other: str,
+                        cache: TruthCache) -> dict:
+    """How far this run is from ``other`` engine's float64 run of the same integrator and dt (rad):
+    e.g. MJX against C MuJoCo.  A missing or failing other engine is said, not raised."""
+    out = {"engine": other, "integrator": spec.integrator, "precision": "float64"}
+    try:
+        offered = load_adapter(other).offered_integrators()
+        match = [i for i in offered if i.lower() == spec.integrator.lower()]
+        if not match:
+            return {**out, "message": f"{other} offers no {spec.integrator}"}
+        ref = cache.engine_run(pb, other, match[0], spec.dt, spec.steps)
+    except EngineDiverged as e:
+        return {**out, "message": f"{other} diverged at t = {e.t:.6g} s"}
+    except Exception as e:
+        return {**out, "message": f"{other} could not run: {_describe(e)}"}
+    d = geodesic_angle(ref.quaternion_wxyz, trajectory.quaternion_wxyz)
+    finite = bool(np.all(np.isfinite(d)))
+    return {**out, "max_orientation_diff_rad": float(np.max(d)) if finite else None,
+            "final_orientation_diff_rad": float(d[-1]) if finite else None}
 
 
 def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCache) -> dict:

@@ -27,6 +27,11 @@ def summary_table(runs: list[dict]) -> str:
             repro = f"{shown} {fmt(match.get('max_orientation_diff_rad'), '.1e')}"
         else:
             repro = ""
+        vs = r.get("vs_engine")
+        if vs:
+            diff = vs.get("max_orientation_diff_rad")
+            repro += f"; vs {vs['engine']}/{vs['integrator']} " + (fmt(diff, ".1e") if diff is not None
+                                                                    else vs.get("message", "-"))
         status = r["status"]
         rows.append((r["case"], run_label(r), f"{r['dt']:g}", status,
                      fmt(m.get("orientation_error_max_rad")), fmt(m.get("angular_momentum_error_max_rel")),
