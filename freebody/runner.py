@@ -286,8 +286,7 @@ def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: boo
 def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> RunOutput:
     cache = cache or TruthCache()
     pb = spec.problem
-    base = dict(case=pb.name, engine=spec.engine, integrator=spec.integrator, precision=spec.precision,
-                dt=spec.dt, steps=spec.steps, truth=truth_kind(pb))
+    base = _identity(spec)
     t0 = time.perf_counter()
     try:
         cls = load_adapter(spec.engine)
@@ -297,8 +296,6 @@ def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> 
         return _no_trajectory(base, "failed", f"importing the {spec.engine} adapter failed: {_describe(e)}",
                               time.perf_counter() - t0)
     version = settings = adapter = None
-    diverged_at = None
-    message = ""
     try:
         version = cls.engine_version()
         adapter = cls(pb, spec.dt, spec.integrator, spec.precision)
@@ -307,13 +304,43 @@ def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> 
             trajectory = adapter.simulate(spec.steps)
         finally:
             adapter.close()
-        status = "ok"
+        sim = Simulated(trajectory, None, "", version, settings, time.perf_counter() - t0,
+                        getattr(adapter, "compile_time_s", None))
     except EngineDiverged as e:
-        trajectory, status, diverged_at, message = e.trajectory, "diverged", e.t, e.reason
+        sim = Simulated(e.trajectory, e.t, e.reason, version, settings, time.perf_counter() - t0,
+                        getattr(adapter, "compile_time_s", None))
     except Exception as e:
         return _no_trajectory(base, "failed", _describe(e), time.perf_counter() - t0, version, settings)
-    wall = time.perf_counter() - t0
-    compile_time = getattr(adapter, "compile_time_s", None)
+    return finish(spec, sim, cache, identify_scheme, compare_with=cls.compare_with)
+
+
+@dataclass(frozen=True)
+class Simulated:
+    """What an engine produced for one run, before it is judged against the truth.
+
+    trajectory : the canonical samples (up to the blow-up when the engine reported one).
+    diverged_at : s, when the engine itself reported an instability, else None.
+    """
+
+    trajectory: Trajectory | None
+    diverged_at: float | None
+    reason: str
+    version: str | None
+    settings: dict | None
+    wall_time_s: float
+    compile_time_s: float | None = None
+
+
+def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bool = True,
+           compare_with: str | None = None) -> RunOutput:
+    """Judge a simulated run: truth, divergence (the one place it is decided), metrics, scheme
+    identification and the comparison with a ported engine's original.  Used for runs stepped one
+    by one (:func:`execute`) and for runs stepped as a batch (``freebody sweep --engine mjx``)."""
+    pb = spec.problem
+    base = _identity(spec)
+    trajectory, diverged_at, version, settings = sim.trajectory, sim.diverged_at, sim.version, sim.settings
+    wall, compile_time = sim.wall_time_s, sim.compile_time_s
+    status, message = ("ok", "") if diverged_at is None else ("diverged", sim.reason)
     try:
         truth = cache.get(pb, spec.dt, spec.steps)
     except Exception as e:
@@ -337,8 +364,8 @@ def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> 
     matches = vs_engine = None
     if identify_scheme and spec.engine != "reference" and status == "ok":
         matches = identify(pb, trajectory, spec, cache)
-        if cls.compare_with:
-            vs_engine = compare_with_engine(pb, trajectory, spec, cls.compare_with, cache)
+        if compare_with:
+            vs_engine = compare_with_engine(pb, trajectory, spec, compare_with, cache)
     final = trajectory.state(-1).as_dict() if status == "ok" else None
     result = RunResult(**base, status=status, message=message, metrics=_clean(metrics), final_state=final,
                        wall_time_s=wall, engine_version=version, engine_settings=settings or {},
@@ -383,6 +410,12 @@ def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCac
     return {"integrator": best if best and finite[best] <= tol.SCHEME_MATCH_RAD else None,
             "closest": best, "max_orientation_diff_rad": finite.get(best),
             "candidates": diffs, "threshold_rad": tol.SCHEME_MATCH_RAD}
+
+
+def _identity(spec: RunSpec) -> dict:
+    """The fields of a RunResult that say which run it is."""
+    return dict(case=spec.problem.name, engine=spec.engine, integrator=spec.integrator,
+                precision=spec.precision, dt=spec.dt, steps=spec.steps, truth=truth_kind(spec.problem))
 
 
 def _prefix_metrics(pb, trajectory, truth, t_div) -> dict:
