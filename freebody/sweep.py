@@ -21,6 +21,7 @@ runs bit for bit: ``freebody run worst/<case>.toml --engine E --integrator I``.
 """
 from __future__ import annotations
 
+import importlib
 import json
 import math
 import platform
@@ -39,7 +40,8 @@ from .reference_impl.problem import Body, InitialState, Problem
 from .reference_impl.rotations import matrix_from_quat, quat_normalize
 from .reference_impl.truth import truth_kind
 from .results import write_json_atomic
-from .runner import STATUSES, RunSpec, TruthCache, execute, expand
+from .adapters.base import load_adapter
+from .runner import STATUSES, RunSpec, Simulated, TruthCache, execute, expand, finish
 from .summary import run_label
 
 SWEEP_SCHEMA_VERSION = 1
@@ -263,11 +265,15 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
                progress: bool = True, precisions: list[str] | None = None) -> list[dict]:
     """Run every body on every selected engine and integrator at the sweep's time steps.
 
+    Engines that can step many bodies at once (``mjx``: one ``jax.vmap``-ped batch per integrator,
+    precision, dt and horizon) do so; the others run body by body.  Every run is judged by
+    :func:`freebody.runner.finish`, so a batched run's result is that of the same run alone.
     Returns the runs as results.json ``runs`` entries (in body, dt, engine, integrator order), without
     the per-run ``engine_settings`` (reproduce a run with ``freebody run`` to see them).
     """
     extra = {"precisions": precisions} if precisions else {}
     specs = expand([b.problem for b in bodies], engines, integrators, None, None, **extra)
+    batched = _batched_outputs(specs, progress)
     by_case: dict[str, list[RunSpec]] = {}
     for s in specs:
         by_case.setdefault(s.problem.name, []).append(s)
@@ -277,13 +283,56 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
     for body in bodies:
         cache = TruthCache()  # one body at a time: its truth and reference maps, then freed
         for spec in by_case.get(body.problem.name, []):
-            run = execute(spec, cache).result.to_json()
+            if id(spec) in batched:
+                sim, compare_with = batched[id(spec)]
+                out = finish(spec, sim, cache, compare_with=compare_with)
+            else:
+                out = execute(spec, cache)
+            run = out.result.to_json()
             run.pop("engine_settings", None)
             run.pop("trajectory", None)
             counts[run["status"]] += 1
             runs.append(run)
         bar.update(body.problem.name, counts)
     return runs
+
+
+BATCH_ENGINES = ("mjx",)  # engines whose adapter module offers simulate_batch(problems, dt, steps, ...)
+
+
+def _batched_outputs(specs: list[RunSpec], progress: bool) -> dict[int, tuple[Simulated, str | None]]:
+    """Step the runs of batch-capable engines as one batch per (engine, integrator, precision, dt,
+    steps); id(spec) -> (its Simulated, the engine it ports).  A batch that cannot run leaves its
+    runs to ``execute``."""
+    groups: dict[tuple, list[RunSpec]] = {}
+    for s in specs:
+        if s.engine in BATCH_ENGINES and s.integrator != "*":
+            groups.setdefault((s.engine, s.integrator, s.precision, s.dt, s.steps), []).append(s)
+    out: dict[int, tuple[Simulated, str | None]] = {}
+    for (engine, integrator, precision, dt, steps), group in groups.items():
+        try:
+            cls = load_adapter(engine)
+            module = importlib.import_module(cls.__module__)
+            t0 = time.perf_counter()
+            batch = module.simulate_batch([s.problem for s in group], dt, steps, integrator, precision)
+            wall = (time.perf_counter() - t0) / len(group)
+        except Exception as e:  # the runs go one by one instead, and record their own failure
+            if progress:
+                sys.stderr.write(f"freebody: warning: batch of {len(group)} {engine}/{integrator}/{precision} "
+                                 f"runs failed ({type(e).__name__}: {e}); running them one by one\n")
+            continue
+        version = cls.engine_version()
+        settings = batch.engine_settings or [None] * len(group)
+        for spec, tr, t_div, st in zip(group, batch.trajectories, batch.diverged_at_s, settings):
+            reason = "state is not finite (NaN or inf)" if t_div is not None else ""
+            if t_div is not None:  # keep the samples up to the blow-up, as a single run does
+                tr = tr.head(int(np.searchsorted(tr.t, t_div, side="right")))
+            out[id(spec)] = (Simulated(tr, t_div, reason, version, st, wall, batch.compile_time_s / len(group)),
+                             cls.compare_with)
+        if progress:
+            sys.stderr.write(f"{engine}/{integrator}/{precision} dt={dt:g}: {len(group)} bodies in one batch "
+                             f"(compile {batch.compile_time_s:.1f} s, step {batch.step_time_s:.2f} s)\n")
+    return out
 
 
 # --- reducing -----------------------------------------------------------------------------------
