@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import shutil
 import signal
 import sys
 import threading
@@ -118,12 +119,16 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
     runs: dict[int, dict] = {}
     outputs: dict[int, RunOutput] = {}
 
+    # Trajectory files are written to a staging folder and published with results.json, so a kill
+    # at any moment leaves the previous results.json with the trajectory files it names.
+    staging = out_path / STAGING if out_path is not None else None
+
     def on_done(index: int, payload: dict) -> None:
         result = payload["result"]
-        if "saved" in payload and out_path is not None:
+        if "saved" in payload and staging is not None:
             rel = trajectory_filename(result.to_json())
             tr, truth = payload["saved"]
-            save_trajectory(out_path, rel, tr, truth, every=1)  # thinned by the worker already
+            save_trajectory(staging, rel, tr, truth, every=1)  # thinned by the worker already
             result = replace(result, trajectory=rel)
         out = RunOutput(result, *(payload.get("arrays") or (None, None, None)))
         runs[index] = result.to_json()
@@ -135,11 +140,14 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
     def write(incomplete: bool) -> dict:
         doc = results_document([runs[i] for i in sorted(runs)], versions, incomplete=incomplete)
         if out_path is not None:
+            _publish_trajectories(out_path)
             write_json_atomic(out_path / "results.json", doc)
         return doc
 
     local = executor == "local"
-    tasks = plan(specs, save_dir=str(out_path) if out_path is not None and local else None,
+    if staging is not None:
+        shutil.rmtree(staging, ignore_errors=True)  # left by a run killed with SIGKILL
+    tasks = plan(specs, save_dir=str(staging) if staging is not None and local else None,
                  save_every=save_every, ship_saved=out_path is not None and not local,
                  keep_arrays=keep_arrays)
     try:
@@ -158,7 +166,7 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
             run_dask(tasks, scheduler, timeout, engines, on_done)
     except KeyboardInterrupt:
         with _interrupts_deferred():
-            _remove_partial_trajectories(out_path)
+            _remove_partial_trajectories(staging)
             write(incomplete=True)
             bar.interrupted(out_path / "results.json" if out_path is not None else None)
         raise
@@ -183,14 +191,33 @@ def _interrupts_deferred():
         raise KeyboardInterrupt
 
 
+STAGING = ".staging"  # inside the output folder: trajectory files of the run in progress
+
+
+def _publish_trajectories(out_path: Path) -> None:
+    """Replace ``trajectories/`` by the staged files of this run (the previous run's files go with
+    its results.json, which is replaced right after).  Between the two renames and the write of
+    results.json a kill can leave the old results.json beside the new files: a window of a few
+    system calls, against the whole run otherwise."""
+    staged = out_path / STAGING / "trajectories"
+    final, old = out_path / "trajectories", out_path / ".trajectories.old"
+    if staged.is_dir():
+        shutil.rmtree(old, ignore_errors=True)
+        if final.exists():
+            final.rename(old)
+        staged.rename(final)
+        shutil.rmtree(old, ignore_errors=True)
+    shutil.rmtree(out_path / STAGING, ignore_errors=True)
+
+
 _TEMPORARY_NPZ = re.compile(r"tmp[a-z0-9_]{8}\.npz")  # tempfile.mkstemp(suffix=".npz") in save_trajectory
 
 
-def _remove_partial_trajectories(out_path: Path | None) -> None:
+def _remove_partial_trajectories(staging: Path | None) -> None:
     """Remove the temporary files of trajectories being written by a killed worker."""
-    if out_path is None or not (out_path / "trajectories").is_dir():
+    if staging is None or not (staging / "trajectories").is_dir():
         return
-    for p in (out_path / "trajectories").iterdir():
+    for p in (staging / "trajectories").iterdir():
         if _TEMPORARY_NPZ.fullmatch(p.name) and "__dt" not in p.name:
             with contextlib.suppress(OSError):
                 p.unlink()

@@ -27,8 +27,8 @@ WORKER_EXIT_BUDGET_S = 10.0  # orphaned workers notice their parent is gone with
 pytestmark = pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
 
 
-def _start(out: Path, jobs: int) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "freebody", *RUN, "--out", str(out), "--jobs", str(jobs)],
+def _start(out: Path, jobs: int, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "freebody", *RUN, "--out", str(out), "--jobs", str(jobs), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -91,7 +91,9 @@ def test_a_killed_run_leaves_the_previous_results_and_no_worker(tmp_path):
                           capture_output=True, text=True, timeout=STARTUP_BUDGET_S)
     assert done.returncode == 0, done.stderr
     before = (tmp_path / "results.json").read_bytes()
-    proc = _start(tmp_path, 2)
+    files = {r["trajectory"]: (tmp_path / r["trajectory"]).read_bytes() for r in json.loads(before)["runs"]}
+    assert files
+    proc = _start(tmp_path, 2, "--save-every", "7")  # same file names, other contents
     try:
         _wait_for_finished_runs(proc, 1)
         workers = _children(proc.pid)
@@ -102,4 +104,6 @@ def test_a_killed_run_leaves_the_previous_results_and_no_worker(tmp_path):
         proc.kill()
     assert (tmp_path / "results.json").read_bytes() == before
     assert json.loads(before)["incomplete"] is False
+    for rel, data in files.items():  # the trajectory files it names are still its own
+        assert (tmp_path / rel).read_bytes() == data, rel
     assert _wait_gone(workers, WORKER_EXIT_BUDGET_S) == [], "orphaned workers kept running"
