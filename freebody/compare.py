@@ -15,7 +15,6 @@ regressed, 1 something regressed, 2 unusable input (:class:`~freebody.errors.Inp
 from __future__ import annotations
 
 import difflib
-import json
 import math
 import tomllib
 from dataclasses import dataclass, field
@@ -23,14 +22,10 @@ from pathlib import Path
 
 from . import compare_tolerances as ct
 from .errors import InputError
-from .results import SCHEMA_VERSION
+from .results import load_results
 from .summary import run_label
 
 STATUS_RANK = {"ok": 3, "diverged": 2, "failed": 1}  # skipped: not measured (no rank)
-REQUIRED_RUN_KEYS = ("case", "engine", "integrator", "dt", "status")
-MIGRATE = ("to migrate, re-run the suite with this freebody (freebody run ... --out DIR) and store a new "
-           "baseline (freebody baseline DIR --to FILE --force), or compare with the freebody release that "
-           "wrote it")
 
 
 @dataclass(frozen=True)
@@ -101,44 +96,7 @@ def load_side(source, role: str) -> dict:
 
     role : "baseline" or "current", named in error messages.  InputError on anything unusable.
     """
-    if isinstance(source, dict):
-        return _check(source, f"{role} (in memory)")
-    p = Path(source)
-    if p.is_dir():
-        if not (p / "results.json").is_file():
-            raise InputError(f"{role} {p}: no results.json in this directory (run freebody run --out {p})")
-        p = p / "results.json"
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise InputError(f"{role} {p}: no such file") from None
-    except OSError as e:
-        raise InputError(f"{role} {p}: cannot read: {e.strerror or e}") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise InputError(f"{role} {p}: not valid JSON: {e.msg} (line {e.lineno}, column {e.colno})") from None
-    return _check(doc, f"{role} {p}")
-
-
-def _check(doc, where: str) -> dict:
-    if not isinstance(doc, dict) or "schema_version" not in doc:
-        raise InputError(f"{where}: schema_version: missing; not a freebody results or baseline file")
-    v = doc["schema_version"]
-    if v != SCHEMA_VERSION:
-        raise InputError(f"{where}: schema_version: is {v!r}, this freebody reads {SCHEMA_VERSION}; {MIGRATE}")
-    runs = doc.get("runs")
-    if not isinstance(runs, list):
-        raise InputError(f"{where}: runs: missing or not a list")
-    for i, r in enumerate(runs):
-        if not isinstance(r, dict):
-            raise InputError(f"{where}: runs[{i}]: not an object")
-        for k in REQUIRED_RUN_KEYS:
-            if k not in r:
-                raise InputError(f"{where}: runs[{i}].{k}: missing")
-        if _finite(r["dt"]) is None or r["dt"] <= 0:
-            raise InputError(f"{where}: runs[{i}].dt: not a positive number: {r['dt']!r}")
-    return doc
+    return load_results(source, role)
 
 
 def _finite(x) -> float | None:

@@ -113,11 +113,16 @@ def save_trajectory(out_dir: Path, relname: str, tr: Trajectory, truth: Trajecto
         arrays["orthonormality_error"] = tr_s.orthonormality_error
     if truth_s is not None:
         arrays.update({"truth_" + f: getattr(truth_s, f) for f in _FIELDS})
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
+    write_npz_atomic(path, arrays)
+
+
+def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True) -> None:
+    """Write arrays to an npz file via a temporary file (``tmp*.npz``) in the same folder and a rename."""
+    fd, tmp = tempfile.mkstemp(dir=Path(path).parent, suffix=".npz")
     os.close(fd)
     try:
         os.chmod(tmp, 0o666 & ~_umask())
-        np.savez_compressed(tmp, **arrays)
+        (np.savez_compressed if compressed else np.savez)(tmp, **arrays)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -134,26 +139,56 @@ def load_trajectory(path: Path) -> tuple[Trajectory, Trajectory | None]:
     return tr, truth
 
 
-def load_results(path: str | Path) -> dict:
-    """Load a results.json (or a run directory holding one); InputError on anything unusable."""
-    p = Path(path)
+REQUIRED_RUN_KEYS = ("case", "engine", "integrator", "dt", "status")
+MIGRATE = ("to migrate, re-run the suite with this freebody (freebody run ... --out DIR) and store a new "
+           "baseline (freebody baseline DIR --to FILE --force), or compare with the freebody release that "
+           "wrote it")
+
+
+def load_results(source, role: str = "") -> dict:
+    """A results document from a run directory, a results.json or baseline file, or a dict.
+
+    role : e.g. "baseline" or "current", named in error messages.  InputError on anything unusable
+    (missing file, bad JSON, another schema version: the message says how to migrate, malformed runs).
+    """
+    prefix = f"{role} " if role else ""
+    if isinstance(source, dict):
+        return check_results(source, f"{prefix}(in memory)")
+    p = Path(source)
     if p.is_dir():
+        if not (p / "results.json").is_file():
+            raise InputError(f"{prefix}{p}: no results.json in this directory (run freebody run --out {p})")
         p = p / "results.json"
     try:
         text = p.read_text()
+    except FileNotFoundError:
+        raise InputError(f"{prefix}{p}: no such file") from None
     except OSError as e:
-        raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
+        raise InputError(f"{prefix}{p}: cannot read: {e.strerror or e}") from None
     try:
         doc = json.loads(text)
     except json.JSONDecodeError as e:
-        raise InputError(f"{p}: not valid JSON: {e.msg} (line {e.lineno})") from None
+        raise InputError(f"{prefix}{p}: not valid JSON: {e.msg} (line {e.lineno}, column {e.colno})") from None
+    return check_results(doc, f"{prefix}{p}")
+
+
+def check_results(doc, where: str) -> dict:
+    """Validate a loaded results document's schema version and runs; InputError naming ``where``."""
     if not isinstance(doc, dict) or "schema_version" not in doc:
-        raise InputError(f"{p}: schema_version: missing; not a freebody results file")
+        raise InputError(f"{where}: schema_version: missing; not a freebody results or baseline file")
     v = doc["schema_version"]
     if v != SCHEMA_VERSION:
-        raise InputError(f"{p}: schema_version: is {v!r}, this freebody reads {SCHEMA_VERSION}; "
-                         f"re-run the runs with this version (freebody run ... --out DIR) or use the "
-                         f"freebody release that wrote it")
-    if not isinstance(doc.get("runs"), list):
-        raise InputError(f"{p}: runs: missing or not a list")
+        raise InputError(f"{where}: schema_version: is {v!r}, this freebody reads {SCHEMA_VERSION}; {MIGRATE}")
+    runs = doc.get("runs")
+    if not isinstance(runs, list):
+        raise InputError(f"{where}: runs: missing or not a list")
+    for i, r in enumerate(runs):
+        if not isinstance(r, dict):
+            raise InputError(f"{where}: runs[{i}]: not an object")
+        for k in REQUIRED_RUN_KEYS:
+            if k not in r:
+                raise InputError(f"{where}: runs[{i}].{k}: missing")
+        dt = r["dt"]
+        if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt) or dt <= 0:
+            raise InputError(f"{where}: runs[{i}].dt: not a positive number: {dt!r}")
     return doc

@@ -17,13 +17,12 @@ The numbers are the same whichever process computed them: results are identical 
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .reference_impl.conventions import Trajectory
+from .results import write_npz_atomic
 from .runner import SCHEME_CANDIDATES, RunOutput, RunSpec, TruthCache
 
 # reference maps a run of the reference engine can stand in for (identify() compares with these)
@@ -40,15 +39,7 @@ def _save(path: Path, tr: Trajectory) -> None:
     arrays = {f: getattr(tr, f) for f in _FIELDS}
     if tr.orthonormality_error is not None:
         arrays["orthonormality_error"] = tr.orthonormality_error
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".", suffix=".npz")
-    os.close(fd)
-    try:
-        np.savez(tmp, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_npz_atomic(path, arrays, compressed=False)  # read back at once by the group's other runs
 
 
 def _load(path: Path) -> Trajectory | None:
