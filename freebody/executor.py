@@ -138,7 +138,7 @@ class Worker:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "freebody.worker", str(r_task), str(w_res)],
                 pass_fds=(r_task, w_res), stdin=subprocess.DEVNULL, stdout=2,  # stray prints: to stderr
-                process_group=0)
+                process_group=0, env={**os.environ, **options.get("env", {})})
         finally:
             os.close(r_task)
             os.close(w_res)
@@ -208,7 +208,11 @@ class LocalPool:
         self.workers: list[Worker] = []
         self.store = tempfile.mkdtemp(prefix="freebody-truths-") if share_truths else None
         self.options = {"sys_path": list(sys.path), "engines": dict(base.ENGINES if registry is None else registry),
-                        "preimport": list(engines), "store": self.store}
+                        "preimport": list(engines), "store": self.store, "env": {}}
+        if self.store is not None and "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+            # workers share JAX's compiled programs (mjx compiles for seconds per integrator and
+            # precision); the cache goes with the store at close()
+            self.options["env"]["JAX_COMPILATION_CACHE_DIR"] = os.path.join(self.store, "jax-cache")
         self._start_failures = 0
 
     # -- the event loop --
