@@ -34,7 +34,7 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Callable
 
-from .runner import SCHEME_CANDIDATES, RunSpec
+from .runner import RunSpec, scheme_candidates
 from .sharedcache import group_prefix
 from .worker import RunTask, Runner, failed_payload
 
@@ -72,7 +72,7 @@ def _needed_references(spec: RunSpec) -> tuple[str, ...]:
     """Reference maps that scheme identification compares this run with (as runner.identify)."""
     if spec.engine == "reference":
         return ()
-    return SCHEME_CANDIDATES + (("rk4",) if "rk4" in spec.integrator.lower() else ())
+    return scheme_candidates(spec.integrator)
 
 
 def plan(specs: list[RunSpec], **run_options) -> list[Task]:

@@ -395,13 +395,16 @@ def compare_with_engine(pb: Problem, trajectory: Trajectory, spec: RunSpec, othe
             "final_orientation_diff_rad": float(d[-1]) if finite else None}
 
 
+def scheme_candidates(integrator: str) -> tuple[str, ...]:
+    """The reference maps an engine run with this integrator is compared with (rk4 only for an
+    engine integrator of the RK4 family)."""
+    return SCHEME_CANDIDATES + (("rk4",) if "rk4" in integrator.lower() else ())
+
+
 def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCache) -> dict:
     """The reference map this engine run reproduces most closely, and how closely (rad)."""
-    candidates = list(SCHEME_CANDIDATES)
-    if "rk4" in spec.integrator.lower():
-        candidates.append("rk4")
     diffs = {}
-    for name in candidates:
+    for name in scheme_candidates(spec.integrator):
         ref = cache.reference(pb, name, spec.dt, spec.steps)
         d = geodesic_angle(ref.quaternion_wxyz, trajectory.quaternion_wxyz)
         diffs[name] = float(np.max(d)) if np.all(np.isfinite(d)) else None

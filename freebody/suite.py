@@ -14,7 +14,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Callable, TextIO
 
-from .adapters.base import EngineMissing, load_adapter
+from .adapters.base import load_adapter
 from .errors import InputError
 from .results import results_document, save_trajectory, trajectory_filename, write_json_atomic
 from .runner import RunOutput, RunSpec
@@ -66,9 +66,7 @@ def engine_versions(engines: list[str]) -> dict[str, str | None]:
     for e in engines:
         try:
             out[e] = load_adapter(e).engine_version()
-        except EngineMissing:
-            out[e] = None
-        except Exception:
+        except Exception:  # missing (EngineMissing) or broken: its runs say which
             out[e] = None
     return out
 
