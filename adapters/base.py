@@ -13,12 +13,15 @@ import importlib
 import importlib.metadata
 import importlib.util
 from abc import ABC, abstractmethod
-from typing import ClassVar
+from dataclasses import dataclass, field
+from typing import Callable, ClassVar, Iterator, NamedTuple
 
 import numpy as np
 
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.problem import Problem
+from .capture import capture_output
+from .loads import LoadSchedule, Segment
 
 ENTRY_POINT_GROUP = "freebody.adapters"
 
@@ -29,6 +32,10 @@ class EngineMissing(Exception):
 
 class UnknownEngine(KeyError):
     """No adapter is registered under that name (bad input)."""
+
+
+class UnsupportedOption(ValueError):
+    """The engine does not offer the requested integrator or precision (raised by the base, once)."""
 
 
 class EngineDiverged(Exception):
@@ -42,43 +49,72 @@ class EngineDiverged(Exception):
         self.trajectory = trajectory
 
 
-class Adapter(ABC):
-    """One engine's free body.
+@dataclass
+class BatchRun:
+    """What :meth:`Adapter.simulate_batch` returns for B problems stepped together.
 
-    Class attributes (capabilities):
+    trajectories : one canonical :class:`Trajectory` per problem (steps + 1 samples; non-finite
+        samples after a body's blow-up kept as computed).
+    diverged_at_s : per problem, the time of the first non-finite sample, or None.
+    compile_time_s : s spent compiling (0.0 when cached).  step_time_s : s spent stepping.
+    engine_settings : per problem, the engine defaults changed (as ``Adapter.settings``).
+    """
+
+    trajectories: list[Trajectory]
+    diverged_at_s: list[float | None]
+    compile_time_s: float
+    step_time_s: float
+    engine_settings: list[dict] = field(default_factory=list)
+
+
+class Adapter(ABC):
+    """One engine's free body: the contract between an engine and the harness.
+
+    Class attributes (capabilities, read by the harness):
       name : engine name as used on the command line.
       import_name : the engine's top-level Python module (checked with ``find_spec``).
-      install_hint : how to install the engine.
-      integrators : integrator names the engine offers, its default first, spelt as the engine does.
+      integrators : integrator names the engine offers, its default first, spelt as the engine does
+        (``offered_integrators()`` may narrow them to the installed version).
       precisions : floating-point precisions offered ("float64" unless the engine says otherwise).
-      supports_point_force, supports_body_torque : load kinds the adapter can apply.
       conventions : engine convention facts shown by ``freebody conventions``.
       compare_with : the engine this one ports, compared run by run (or None).
 
-    An instance is one run: ``Adapter(problem, dt, integrator, precision)`` builds the world;
-    ``simulate(steps)`` steps it and returns the canonical :class:`Trajectory`.  ``settings``
+    An instance is one run: ``Adapter(problem, dt, integrator, precision)`` checks the integrator
+    and precision (:class:`UnsupportedOption`), builds the load schedule ``self.loads`` and calls
+    :meth:`build`.  The one required way to step is :meth:`advance`; the harness calls
+    :meth:`chunks` (a long run delivered piece by piece) or :meth:`simulate` (whole).  ``settings``
     records every engine default the adapter changed: ``{key: {"default": d, "set": v}}``.
+
+    What an adapter must define: ``name``, ``import_name``, ``integrators``, :meth:`engine_version`,
+    :meth:`build`, :meth:`advance`.  Everything else has a default.
     """
 
     name: ClassVar[str]
     import_name: ClassVar[str]
-    install_hint: ClassVar[str] = "pip install 'freebody[engines]'"
     integrators: ClassVar[tuple[str, ...]]
     precisions: ClassVar[tuple[str, ...]] = ("float64",)
-    supports_point_force: ClassVar[bool] = True
-    supports_body_torque: ClassVar[bool] = True
     conventions: ClassVar[dict[str, str]] = {}
     # Another engine this one ports (e.g. mjx -> mujoco): each run is also compared with that
     # engine's run of the same integrator and dt (results.json "vs_engine").
     compare_with: ClassVar[str | None] = None
 
     def __init__(self, problem: Problem, dt: float, integrator: str, precision: str = "float64"):
+        offered = self.offered_integrators()
+        if integrator not in offered:
+            raise UnsupportedOption(f"{self.name} {self.engine_version()} has no integrator "
+                                    f"{integrator!r}; offered: {', '.join(offered)}")
+        if precision not in self.precisions:
+            raise UnsupportedOption(f"{self.name} offers the precisions "
+                                    f"{', '.join(self.precisions)}, not {precision!r}")
         self.problem = problem
         self.dt = float(dt)
         self.integrator = integrator
         self.precision = precision
         self.settings: dict[str, dict] = {}
-        self.k = 0  # index of the next step
+        self.k = 0  # index of the next step; advance() moves it
+        # s spent compiling the engine's step (JIT engines; 0.0 when cached); None: no JIT
+        self.compile_time_s: float | None = None
+        self.loads = LoadSchedule(problem, self.dt)
         self.build()
 
     # --- what every adapter must do ------------------------------------------------------------
@@ -87,70 +123,147 @@ class Adapter(ABC):
     def engine_version(cls) -> str:
         """The installed engine's version string."""
 
+    @abstractmethod
+    def build(self) -> None:
+        """Create the engine world for ``self.problem`` at ``self.dt`` with ``self.integrator``
+        and ``self.precision`` (both already checked), recording changed defaults."""
+
+    @abstractmethod
+    def advance(self, steps: int) -> Trajectory:
+        """Step ``steps`` (>= 0) times from the current state (step index ``self.k``, at
+        t = k dt) with the loads of ``self.loads``; return the steps + 1 canonical samples
+        t = (k + i) dt, the current state first, and set ``self.k += steps``.
+
+        On the engine's own instability warning raise :class:`EngineDiverged` with the samples up
+        to and including the bad one (the harness detects non-finite and out-of-bounds states
+        itself: an adapter may simply return them).
+        """
+
+    # --- optional, with defaults ---------------------------------------------------------------
     @classmethod
     def offered_integrators(cls) -> tuple[str, ...]:
         """Integrators available in the installed version (default first)."""
         return cls.integrators
 
-    @abstractmethod
-    def build(self) -> None:
-        """Create the engine world for ``self.problem`` at ``self.dt`` with ``self.integrator``."""
+    @classmethod
+    def selfcheck_integrators(cls) -> tuple[str, ...]:
+        """Integrators ``freebody conventions`` self-checks (default: every offered one)."""
+        return cls.offered_integrators()
+
+    @classmethod
+    def output_capture(cls):
+        """A context manager around anything that may make the engine print (import, build,
+        stepping); yields an object with ``lines`` and ``total``.  Default: the C-level
+        stdout/stderr captured into the run's ``engine_output``."""
+        return capture_output()
+
+    def prepare(self, steps: int) -> None:
+        """Told before stepping how many steps the run will take from here (an adapter that
+        integrates whole trajectories at once can do so here).  Default: nothing."""
+
+    def close(self) -> None:
+        """Release the engine's resources."""
+
+    def bare_loop(self, steps: int) -> Callable[[], object] | None:
+        """For ``freebody bench``: a callable running the engine's own step and its minimal state
+        reads ``steps`` times on this adapter's world, with none of the adapter's work; None
+        when the engine has no such loop (bench then skips its overhead figure)."""
+        return None
+
+    @classmethod
+    def supports_batch(cls) -> bool:
+        """Whether :meth:`simulate_batch` steps many bodies at once (``freebody sweep`` asks)."""
+        return False
+
+    @classmethod
+    def simulate_batch(cls, problems: list[Problem], dt: float, steps: int, integrator: str,
+                       precision: str = "float64") -> BatchRun:
+        """Step many problems of one integrator, precision, dt and horizon together; each body's
+        trajectory equals what :meth:`simulate` gives for it alone."""
+        raise NotImplementedError(f"{cls.name} does not step bodies as a batch")
+
+    def record_setting(self, key: str, default, value) -> None:
+        """Note that the adapter changed an engine default (stored as results.json engine_settings)."""
+        self.settings[key] = {"default": _plain(default), "set": _plain(value)}
+
+    # --- what the harness calls (not overridden) -----------------------------------------------
+    def chunks(self, steps: int, chunk_steps: int | None = None) -> Iterator[Trajectory]:
+        """Step ``steps`` times, delivering the samples in consecutive pieces of at most
+        ``chunk_steps`` steps (None: one piece).  The first piece starts with the current state;
+        together the pieces hold the steps + 1 samples once each.  An :class:`EngineDiverged`
+        carries the samples of its own piece only (after the pieces already delivered)."""
+        if steps < 0:
+            raise ValueError(f"steps must be >= 0, got {steps}")
+        n = steps if chunk_steps is None else max(1, int(chunk_steps))
+        self.prepare(steps)
+        if steps == 0:
+            yield self.advance(0)
+            return
+        done = 0
+        while done < steps:
+            m = min(n, steps - done)
+            try:
+                piece = self.advance(m)
+            except EngineDiverged as e:
+                if done and e.trajectory is not None:
+                    e.trajectory = e.trajectory.tail(1)
+                raise
+            yield piece if done == 0 else piece.tail(1)
+            done += m
+
+    def simulate(self, steps: int, chunk_steps: int | None = None) -> Trajectory:
+        """The whole run: the steps + 1 samples from the current state (t = (k0 + i) dt).
+        Raises :class:`EngineDiverged` carrying every sample up to the blow-up."""
+        pieces: list[Trajectory] = []
+        try:
+            for piece in self.chunks(steps, chunk_steps):
+                pieces.append(piece)
+        except EngineDiverged as e:
+            if e.trajectory is not None:
+                pieces.append(e.trajectory)
+            e.trajectory = Trajectory.concatenate(pieces) if pieces else None
+            raise
+        return pieces[0] if len(pieces) == 1 else Trajectory.concatenate(pieces)
+
+
+class SteppedAdapter(Adapter):
+    """A helper base for engines stepped one call at a time: define :meth:`apply_loads`,
+    :meth:`step` and :meth:`read_state` (and :meth:`instability` if the engine signals one);
+    :meth:`advance` is the loop over them."""
 
     @abstractmethod
-    def apply_loads(self, k: int) -> None:
-        """Apply the case's loads acting on step k (from t_k to t_k+1); cleared after the step."""
+    def apply_loads(self, segment: Segment) -> None:
+        """Put the segment's loads on the body for the next step, at the current state (cleared
+        after the step, or overwritten: the engine's way)."""
 
     @abstractmethod
     def step(self) -> None:
-        """Advance the engine by one step of dt."""
+        """Advance the engine by one step of dt (``advance`` moves ``self.k``)."""
 
     @abstractmethod
     def read_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(position (3,) m COM world, quaternion (4,) wxyz body -> world,
         linear velocity (3,) m/s COM world, angular velocity (3,) rad/s world)."""
 
-    # --- optional hooks --------------------------------------------------------------------------
     def instability(self) -> str | None:
         """The engine's own instability warning since the last call, or None."""
         return None
 
-    def close(self) -> None:
-        """Release the engine's resources."""
-
-    def record_setting(self, key: str, default, value) -> None:
-        """Note that the adapter changed an engine default (stored as results.json engine_settings)."""
-        self.settings[key] = {"default": _plain(default), "set": _plain(value)}
-
-    def unsupported(self, feature: str) -> NotImplementedError:
-        return NotImplementedError(f"{feature} is not supported by {self.name}")
-
-    # --- the run loop ----------------------------------------------------------------------------
-    def simulate(self, steps: int) -> Trajectory:
-        """Step ``steps`` times from the current state (the initial state on a fresh adapter); the
-        trajectory has steps + 1 samples, t = (k0 + i) dt with k0 = self.k.
-
-        Raises :class:`EngineDiverged` (with the trajectory so far) when the engine reports an
-        instability.
-        """
+    def advance(self, steps: int) -> Trajectory:
         k0 = self.k
         out = Trajectory.empty(steps + 1)
         out.t[:] = (k0 + np.arange(steps + 1)) * self.dt
         pos, quat, vel, ang = out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity
         pos[0], quat[0], vel[0], ang[0] = self.read_state()
         for i in range(steps):
-            k = k0 + i
-            self.apply_loads(k)
+            self.apply_loads(self.loads.at(k0 + i))
             self.step()
-            self.k = k + 1
+            self.k = k0 + i + 1
             pos[i + 1], quat[i + 1], vel[i + 1], ang[i + 1] = self.read_state()
             warning = self.instability()
             if warning is not None:
-                raise EngineDiverged(self.k * self.dt, warning, _truncate(out, i + 2))
+                raise EngineDiverged(self.k * self.dt, warning, out.head(i + 2))
         return out
-
-
-def _truncate(tr: Trajectory, n: int) -> Trajectory:
-    return tr.head(n)
 
 
 def _plain(v):
@@ -164,33 +277,54 @@ def _plain(v):
 
 
 # --- the registry -------------------------------------------------------------------------------
-# engine name -> (the engine's import name, adapter module, adapter class).  Order = report order.
-ENGINES: dict[str, tuple[str, str, str]] = {
-    "reference": ("numpy", "freebody.adapters.reference", "ReferenceAdapter"),
-    "mujoco": ("mujoco", "freebody.adapters.mujoco_adapter", "MujocoAdapter"),
-    "pybullet": ("pybullet", "freebody.adapters.pybullet_adapter", "PybulletAdapter"),
-    "dart": ("dartpy", "freebody.adapters.dart_adapter", "DartAdapter"),
-    "mjx": ("jax", "freebody.adapters.mjx_adapter", "MjxAdapter"),
+
+class EngineEntry(NamedTuple):
+    """A registered engine, known without importing it.
+
+    import_name : the engine's top-level Python module (``find_spec`` says whether it is installed).
+    module, cls : where its adapter class lives.  install_hint : how to install the engine.
+    """
+
+    import_name: str
+    module: str
+    cls: str
+    install_hint: str = "pip install 'freebody[engines]'"
+
+
+# engine name -> its entry.  Order = report order.
+ENGINES: dict[str, EngineEntry] = {
+    "reference": EngineEntry("numpy", "freebody.adapters.reference", "ReferenceAdapter",
+                             "always installed"),
+    "mujoco": EngineEntry("mujoco", "freebody.adapters.mujoco_adapter", "MujocoAdapter"),
+    "pybullet": EngineEntry("pybullet", "freebody.adapters.pybullet_adapter", "PybulletAdapter"),
+    "dart": EngineEntry("dartpy", "freebody.adapters.dart_adapter", "DartAdapter"),
+    "mjx": EngineEntry("jax", "freebody.adapters.mjx_adapter", "MjxAdapter",
+                       "pip install 'freebody[jax]'"),
 }
 
-
-# How to install an engine that is missing (default: the `engines` extra).
-INSTALL_HINTS: dict[str, str] = {"mjx": "pip install 'freebody[jax]'"}
+# The engine whose runs are freebody's own reference maps: shared with scheme identification (so
+# the planner orders them first) and never identified themselves.
+REFERENCE_ENGINE = "reference"
+# The engine ``freebody bench`` measures the reference maps against (its bare_loop is the yardstick).
+BENCH_YARDSTICK = "mujoco"
 
 
 def install_hint(name: str) -> str:
-    return INSTALL_HINTS.get(name, "pip install 'freebody[engines]'")
+    """How to install an engine (from its registry entry)."""
+    return registry()[resolve_engine(name)].install_hint
 
 
-def _entry_point_engines() -> dict[str, tuple[str, str, str]]:
+def _entry_point_engines() -> dict[str, EngineEntry]:
     found = {}
     for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
         module, _, cls = ep.value.partition(":")
-        found.setdefault(ep.name, (module.split(".")[0], module, cls))
+        dist = getattr(ep, "dist", None)
+        hint = f"pip install {dist.name}" if dist is not None else f"install the package of {module}"
+        found.setdefault(ep.name, EngineEntry(module.split(".")[0], module, cls, hint))
     return found
 
 
-def registry() -> dict[str, tuple[str, str, str]]:
+def registry() -> dict[str, EngineEntry]:
     """All engines: the built-in ones, then third parties' (entry points)."""
     reg = dict(ENGINES)
     for name, spec in _entry_point_engines().items():
@@ -223,7 +357,7 @@ def load_adapter(name: str) -> type[Adapter]:
     a broken install raises its real error, to be recorded as a failed run).
     """
     name = resolve_engine(name)
-    import_name, module, cls = registry()[name]
+    import_name, module, cls, hint = registry()[name]
     try:
         mod = importlib.import_module(module)
     except ImportError as e:
@@ -231,6 +365,6 @@ def load_adapter(name: str) -> type[Adapter]:
         # (also e.name == engine) is a broken install
         if isinstance(e, ModuleNotFoundError) and e.name == import_name:
             raise EngineMissing(f"{name} is not installed (import {import_name!r} failed): "
-                                f"{install_hint(name)}") from e
+                                f"{hint}") from e
         raise
     return getattr(mod, cls)

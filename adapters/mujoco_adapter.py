@@ -14,16 +14,16 @@ MuJoCo's conventions and what this adapter converts:
   the body frame; the compiler diagonalises it into ``body_inertia`` (principal moments) and
   ``body_iquat`` (principal frame in the body frame).
 - Loads: ``data.xfrc_applied[body]`` (6,) = [force (3,) N world, torque (3,) N m world about the
-  COM].  It persists until overwritten, so apply_loads(k) writes it before every step: the
+  COM].  It persists until overwritten, so advance() writes it before every step: the
   case's wrench for the step's active loads (arms from the state at the start of the step), or
-  zeros.  simulate() rewrites it only where it can change (a new set of loads, or loads whose
+  zeros.  advance() rewrites it only where it can change (a new set of loads, or loads whose
   wrench depends on the state) and clears it at the end.
 - ``xpos``/``xquat`` are one step stale after ``mj_step``: the state is read from ``qpos``/``qvel``.
 - Instability: MuJoCo counts "Nan, Inf or huge value" warnings in ``data.warning`` and by default
   resets the body to ``qpos0`` at rest and carries on.  The adapter disables that auto-reset (so the
   last sample shows the blown-up state) and reports any increase of the watched warning counters,
   at the step that raised it.
-- simulate() is shaped for speed (see its docstring): stretches of steps whose loads do not depend
+- advance() is shaped for speed (see its docstring): stretches of steps whose loads do not depend
   on the state run in C through ``mujoco.rollout`` (which stops at the first warning); the Python
   loop used under state-dependent loads reads the counters once per chunk of steps and replays a
   chunk whose counters moved, from a saved state, to find the step.  The trajectory, divergence
@@ -39,23 +39,21 @@ sleeping and fluid forces are zero/off by default and build() checks that they a
 """
 from __future__ import annotations
 
-import bisect
-from dataclasses import dataclass
-from typing import ClassVar
+from typing import Callable, ClassVar
 
 import mujoco
 import numpy as np
 
-try:  # mujoco.rollout: many steps in one C call (simulate's fast path); absent in old releases
+try:  # mujoco.rollout: many steps in one C call (advance's fast path); absent in old releases
     from mujoco.rollout import Rollout as _Rollout
 except ImportError:  # pragma: no cover - MuJoCo < 3.1
     _Rollout = None
 
 from ..reference_impl.conventions import (Trajectory, angular_velocity_body_from_world,
                                           angular_velocity_world_from_body)
-from ..reference_impl.problem import Problem
 from ..reference_impl.rotations import matrix_from_quat, quat_from_matrix
 from .base import Adapter, EngineDiverged
+from .loads import Segment
 
 # freebody's integrator name (MuJoCo's own spelling) -> the mjtIntegrator member, default first.
 _INTEGRATOR_ENUM: dict[str, str] = {
@@ -77,7 +75,7 @@ _TRIANGLE_ROUNDOFF = 1e-12
 
 _BODY = 1  # body id of the free body (0 is the world)
 
-# simulate() is shaped for speed (MuJoCo's step of a lone body is only ~2 us):
+# advance() is shaped for speed (MuJoCo's step of a lone body is only ~2 us):
 # - a stretch of steps whose loads do not depend on the state (none, or a constant world wrench)
 #   and is at least this long goes through mujoco.rollout, which steps in C (~1.8 us/step against
 #   ~2.4 for a Python loop over mj_step); a shorter stretch is not worth its set-up (~10 us);
@@ -106,7 +104,6 @@ def _fmt(a) -> str:
 class MujocoAdapter(Adapter):
     name: ClassVar[str] = "mujoco"
     import_name: ClassVar[str] = "mujoco"
-    install_hint: ClassVar[str] = "pip install mujoco"
     integrators: ClassVar[tuple[str, ...]] = tuple(_INTEGRATOR_ENUM)
     precisions: ClassVar[tuple[str, ...]] = ("float64",)
     conventions: ClassVar[dict[str, str]] = {
@@ -138,11 +135,6 @@ class MujocoAdapter(Adapter):
 
     # --- world ---------------------------------------------------------------------------------
     def build(self) -> None:
-        if self.integrator not in self.offered_integrators():
-            raise ValueError(f"mujoco {mujoco.__version__} has no integrator {self.integrator!r}; "
-                             f"offered: {', '.join(self.offered_integrators())}")
-        if self.precision != "float64":
-            raise ValueError(f"mujoco computes in float64 only, not {self.precision!r}")
         problem = self.problem
         defaults = mujoco.MjModel.from_xml_string("<mujoco/>").opt
 
@@ -214,12 +206,9 @@ class MujocoAdapter(Adapter):
         self._q = d.qpos[3:7]               # (4,) view: quaternion wxyz, body -> world
         self._arm = np.empty(3)             # scratch (3,)
         self._term = np.empty(3)            # scratch (3,)
-        # The case's load schedule: _Segment's covering k >= 0, ascending.
-        self._segments = _segments(problem, self.dt)
-        self._starts = [seg.k0 for seg in self._segments]
 
     # --- loads -----------------------------------------------------------------------------------
-    def _write_wrench(self, seg: "_Segment") -> None:
+    def _write_wrench(self, seg: Segment) -> None:
         """xfrc_applied[body] = the segment's loads' world (force, torque about the COM) at the
         current state (zeros when none is active): the sum over loads of Load.wrench, with the
         state-dependent arms computed by MuJoCo's 3-vector helpers (numpy's cross on a (3,) array
@@ -240,19 +229,9 @@ class MujocoAdapter(Adapter):
             mujoco.mju_rotVecQuat(term, seg.body_torque, q)
             mujoco.mju_addTo3(tau, term)
 
-    def apply_loads(self, k: int) -> None:
-        self._write_wrench(self._segments[bisect.bisect_right(self._starts, k) - 1])
-
-    # --- stepping --------------------------------------------------------------------------------
-    def step(self) -> None:
-        mujoco.mj_step(self.model, self.data)
-
-    def read_state(self):
-        qpos, qvel = self.data.qpos, self.data.qvel
-        q = qpos[3:7].copy()
-        return (qpos[0:3].copy(), q, qvel[0:3].copy(), angular_velocity_world_from_body(q, qvel[3:6]))
-
-    def instability(self) -> str | None:
+    def _warning_message(self) -> str | None:
+        """The first watched warning whose counter moved since the last call (updating the
+        remembered counts), or None."""
         msg = None
         for i, w in enumerate(self._warnings):
             n = w.number
@@ -264,8 +243,8 @@ class MujocoAdapter(Adapter):
                            f"{mujoco.mju_warningText(enum, w.lastinfo).strip()}")
         return msg
 
-    def simulate(self, steps: int) -> Trajectory:
-        """The base loop (same steps, loads and warnings), shaped for speed.
+    def advance(self, steps: int) -> Trajectory:
+        """Step by step with the schedule's loads, shaped for speed.
 
         Every step's raw qpos/qvel land in one preallocated (steps + 1, nstate) array of
         mjSTATE_FULLPHYSICS rows (time, qpos (7), qvel (6)); the frame conversion is done once for
@@ -282,7 +261,7 @@ class MujocoAdapter(Adapter):
         S = np.empty((steps + 1, self._nstate))  # row i: state at t = (k0 + i) dt
         Q, V = S[:, self._qpos_cols], S[:, self._qvel_cols]  # (steps + 1, 7), (steps + 1, 6) views
         Q[0], V[0] = d.qpos, d.qvel
-        for seg, ka, kb in self._stretches(k0, k0 + steps):
+        for seg, ka, kb in self.loads.stretches(k0, k0 + steps):
             self._write_wrench(seg)
             if (not seg.state_dependent and kb - ka >= _ROLLOUT_MIN_STEPS
                     and _Rollout is not None):
@@ -298,14 +277,7 @@ class MujocoAdapter(Adapter):
         self._xfrc[:] = 0.0
         return _trajectory(Q, V, self.dt, k0)
 
-    def _stretches(self, k_start: int, k_end: int):
-        """(segment, ka, kb): the steps k_start <= k < k_end cut where the active loads change."""
-        for seg in self._segments:
-            ka, kb = max(seg.k0, k_start), min(seg.k1, k_end)
-            if ka < kb:
-                yield seg, ka, int(kb)
-
-    def _loop(self, seg: "_Segment", Q: np.ndarray, V: np.ndarray, i0: int, n: int):
+    def _loop(self, seg: Segment, Q: np.ndarray, V: np.ndarray, i0: int, n: int):
         """n steps by a Python loop over mj_step into rows i0 + 1 .. i0 + n of Q (N, 7) and
         V (N, 6) (raw qpos, qvel); the wrench for the first step is already written.  Returns
         (row, reason) of the first step that raised a watched warning, else None."""
@@ -326,7 +298,7 @@ class MujocoAdapter(Adapter):
                 return self._replay(seg, Q, V, i0, c0, c1)
         return None
 
-    def _replay(self, seg: "_Segment", Q: np.ndarray, V: np.ndarray, i0: int, c0: int, c1: int):
+    def _replay(self, seg: Segment, Q: np.ndarray, V: np.ndarray, i0: int, c0: int, c1: int):
         """A watched counter moved during the chunk of rows c0 + 1 .. c1: restore the state saved
         at its start and step again, one step at a time, to the step that raises the warning.
         Returns (row, reason) and leaves data, the counters and self._warning_counts as the base
@@ -352,11 +324,11 @@ class MujocoAdapter(Adapter):
             if now != after_chunk:
                 for w, before, moved, cur in zip(warnings, self._warning_counts, after_chunk, now):
                     w.number = before + (cur - moved)
-                return i + 1, self.instability()
+                return i + 1, self._warning_message()
         raise RuntimeError("mujoco: a warning counter moved during a chunk but not when it was "
                            "replayed step by step")
 
-    def _rollout(self, seg: "_Segment", S: np.ndarray, i0: int, n: int):
+    def _rollout(self, seg: Segment, S: np.ndarray, i0: int, n: int):
         """n steps in C by mujoco.rollout into rows i0 + 1 .. i0 + n of S (mjSTATE_FULLPHYSICS
         rows), with the constant wrench already written in xfrc_applied.  Returns (row, reason)
         of the step that raised a watched warning, else None.
@@ -388,11 +360,26 @@ class MujocoAdapter(Adapter):
         for w, b in zip(self._all_warnings, before):
             w.number += b
         if any(w.number != c for w, c in zip(self._warnings, self._warning_counts)):
-            return i0 + taken, self.instability()
+            return i0 + taken, self._warning_message()
         if taken < n:  # stopped by a warning the base loop does not watch: carry on as it would
             return self._loop(seg, S[:, self._qpos_cols], S[:, self._qvel_cols], i0 + taken,
                               n - taken)
         return None
+
+    def bare_loop(self, steps: int) -> Callable[[], object]:
+        """mj_step and copies of qpos/qvel, ``steps`` times on this world (``freebody bench``)."""
+        m, d = self.model, self.data
+
+        def loop():
+            step, qpos, qvel = mujoco.mj_step, d.qpos, d.qvel
+            Q, V = np.empty((steps + 1, qpos.size)), np.empty((steps + 1, qvel.size))
+            Q[0], V[0] = qpos, qvel
+            for k in range(1, steps + 1):
+                step(m, d)
+                Q[k] = qpos
+                V[k] = qvel
+            return Q, V
+        return loop
 
     def close(self) -> None:
         if getattr(self, "_roller", None) is not None:
@@ -408,51 +395,6 @@ def _trajectory(Q: np.ndarray, V: np.ndarray, dt: float, k0: int = 0) -> Traject
     return Trajectory(t=(k0 + np.arange(len(Q))) * dt, position=Q[:, 0:3].copy(), quaternion_wxyz=q,
                       linear_velocity=V[:, 0:3].copy(),
                       angular_velocity=angular_velocity_world_from_body(q, V[:, 3:6]))
-
-
-@dataclass(frozen=True)
-class _Segment:
-    """Steps k0 <= k < k1 (k1 may be inf) with one set of active loads, pre-summed.
-
-    constant : (6,) [sum of forces (3,) N world, sum of world couples (3,) N m world].
-    point_forces : ((point (3,) m world, force (3,) N world), ...) of world-point loads.
-    body_point_forces : ((body_point (3,) m body, force (3,) N world), ...).
-    body_torque : (3,) N m body frame, the sum of body-frame couples, or None.
-    """
-
-    k0: int
-    k1: float
-    constant: np.ndarray
-    point_forces: tuple[tuple[np.ndarray, np.ndarray], ...]
-    body_point_forces: tuple[tuple[np.ndarray, np.ndarray], ...]
-    body_torque: np.ndarray | None
-
-    @property
-    def state_dependent(self) -> bool:
-        return bool(self.point_forces or self.body_point_forces or self.body_torque is not None)
-
-
-def _segments(problem: Problem, dt: float) -> list[_Segment]:
-    """The case's loads as step intervals with a constant active set, covering k >= 0."""
-    edges = sorted({0} | {int(k) for ld in problem.loads for k in ld.step_range(dt)
-                          if np.isfinite(k) and k > 0})
-    out = []
-    for i, k0 in enumerate(edges):
-        k1 = edges[i + 1] if i + 1 < len(edges) else np.inf
-        loads = problem.active_loads(k0, dt)
-        constant = np.zeros(6)
-        body_torque = np.zeros(3)
-        for ld in loads:
-            constant[0:3] += ld.force
-            constant[3:6] += ld.torque
-            body_torque += ld.body_torque
-        point = tuple((np.array(ld.point), np.array(ld.force)) for ld in loads
-                      if ld.point is not None)
-        body_point = tuple((np.array(ld.body_point), np.array(ld.force)) for ld in loads
-                           if ld.point is None and ld.body_point is not None)
-        out.append(_Segment(k0, k1, constant, point, body_point,
-                            body_torque if np.any(body_torque) else None))
-    return out
 
 
 def _inertial_element(mass: float, I_body: np.ndarray) -> str:

@@ -2,7 +2,9 @@
 every engine alike.
 
 Conventions: canonical throughout (no conversion).  Integrators: every name in
-``reference_impl.integrators.INTEGRATORS``.  Always available (numpy only).
+``reference_impl.integrators.INTEGRATORS``.  Always available (numpy only).  The integrators are
+whole-trajectory loops from the initial state: :meth:`prepare` integrates the run once and
+:meth:`advance` hands out its samples.
 """
 from __future__ import annotations
 
@@ -17,7 +19,6 @@ from .base import Adapter
 class ReferenceAdapter(Adapter):
     name: ClassVar[str] = "reference"
     import_name: ClassVar[str] = "numpy"
-    install_hint: ClassVar[str] = "always installed"
     integrators: ClassVar[tuple[str, ...]] = tuple(INTEGRATORS)
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "(w, x, y, z), Hamilton, body -> world (canonical)",
@@ -32,24 +33,26 @@ class ReferenceAdapter(Adapter):
     def engine_version(cls) -> str:
         return _freebody_version
 
+    @classmethod
+    def selfcheck_integrators(cls) -> tuple[str, ...]:
+        # the self-checks' expectations are those of the engines' maps
+        return tuple(i for i in cls.integrators if i.startswith("semi-implicit"))
+
     def build(self) -> None:
         self._trajectory: Trajectory | None = None
 
-    def simulate(self, steps: int) -> Trajectory:
-        return simulate(self.problem, self.integrator, self.dt, steps)
+    def prepare(self, steps: int) -> None:
+        self._integrate(self.k + steps)
 
-    # Step-by-step use replays a trajectory integrated on first use (the integrators are
-    # whole-trajectory loops); loads are part of the problem, so apply_loads has nothing to do.
-    def apply_loads(self, k: int) -> None:
-        pass
+    def _integrate(self, total: int) -> None:
+        if self._trajectory is None or len(self._trajectory) <= total:
+            self._trajectory = simulate(self.problem, self.integrator, self.dt, total)
 
-    def step(self) -> None:
-        self.k += 1
-
-    def read_state(self):
-        if self._trajectory is None or len(self._trajectory) <= self.k:
-            steps = max(self.k, self.problem.steps(self.dt))
-            self._trajectory = simulate(self.problem, self.integrator, self.dt, steps)
+    def advance(self, steps: int) -> Trajectory:
+        k0 = self.k
+        self._integrate(k0 + steps)
         tr = self._trajectory
-        return (tr.position[self.k].copy(), tr.quaternion_wxyz[self.k].copy(),
-                tr.linear_velocity[self.k].copy(), tr.angular_velocity[self.k].copy())
+        self.k = k0 + steps
+        if k0 == 0 and len(tr) == steps + 1:
+            return tr
+        return tr.tail(k0).head(steps + 1)

@@ -4,18 +4,17 @@ Three measurements, each repeated and quoted as the median over the repeats (the
 shared and noisy; the repeats of the things compared are interleaved, so drifts of the machine's
 load hit both sides alike):
 
-1. Engine overhead, per installed engine (a missing one is listed under ``skipped``): a bare loop
-   of the engine's own step plus the minimal calls any user needs to see the state (MuJoCo:
-   ``mj_step`` + copy of ``qpos``/``qvel`` into preallocated arrays; PyBullet: ``stepSimulation``
-   + ``getBasePositionAndOrientation`` + ``getBaseVelocity``, kept in lists; DART: ``world.step``
-   + ``getPositions``/``getVelocities`` into preallocated arrays) for N steps, against freebody's
+1. Engine overhead, per registered engine (a missing one, or one whose adapter declares no bare
+   loop, is listed under ``skipped`` with the reason): the adapter's ``bare_loop`` (the engine's
+   own step plus the minimal calls any user needs to see the state, e.g. MuJoCo: ``mj_step`` +
+   copy of ``qpos``/``qvel`` into preallocated arrays) for N steps, against freebody's
    ``adapter.simulate(N)`` on the same engine world (state captured and converted to the
    canonical trajectory; no truth, no metrics, no scheme identification).  Both start from a world
    built by the adapter (building is not timed).  ``overhead_ratio`` = freebody / bare.
 2. The reference integrators batched over B bodies (:mod:`freebody.reference_impl.batched`),
    B = 1, 100, 1000, 10000: seconds per body-step (the batch's one-off set-up, measured with zero
-   steps, subtracted), and the speed-up over one MuJoCo body-step (a bare ``mj_step`` loop,
-   ``mujoco_body_step_s``).
+   steps, subtracted), and the speed-up over one body-step of the yardstick engine
+   (``adapters.base.BENCH_YARDSTICK``, MuJoCo: its bare loop, ``mujoco_body_step_s``).
 3. The default suite (``freebody run``) serial (``--jobs 1``) and parallel (``--jobs <cores>``),
    wall time of the whole command in a subprocess; only serial when ``freebody run`` has no
    ``--jobs`` (the note says so).
@@ -46,7 +45,6 @@ TARGET_BATCH_SPEEDUP = 20.0      # engine-equivalent maps >= 20 x faster per bod
 TARGET_BATCH_SIZE = 1000         # ... at B = 1000
 ENGINE_EQUIVALENT_MAPS = ("semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro")
 
-BENCH_ENGINES = ("mujoco", "pybullet", "dart")
 BATCH_SIZES = (1, 100, 1000, 10000)
 CASE = "dzhanibekov"             # torque-free, no gravity, no loads: the engines' bare step
 DT = 0.001                       # s
@@ -94,53 +92,6 @@ def _timed(fn: Callable[[], object]) -> float:
 
 # --- 1. engine overhead ---------------------------------------------------------------------------
 
-def _bare_loop(engine: str, adapter, steps: int) -> Callable[[], object]:
-    """The engine's own step + its minimal state reads, ``steps`` times, on the adapter's world."""
-    if engine == "mujoco":
-        import mujoco
-
-        m, d = adapter.model, adapter.data
-
-        def loop():
-            step, qpos, qvel = mujoco.mj_step, d.qpos, d.qvel
-            Q, V = np.empty((steps + 1, qpos.size)), np.empty((steps + 1, qvel.size))
-            Q[0], V[0] = qpos, qvel
-            for k in range(1, steps + 1):
-                step(m, d)
-                Q[k] = qpos
-                V[k] = qvel
-            return Q, V
-        return loop
-    if engine == "pybullet":
-        import pybullet
-
-        cid, body = adapter._cid, adapter._body  # the adapter's client and body (same world)
-
-        def loop():
-            step, pose, vel = (pybullet.stepSimulation, pybullet.getBasePositionAndOrientation,
-                               pybullet.getBaseVelocity)
-            P, V = [pose(body, physicsClientId=cid)], [vel(body, physicsClientId=cid)]
-            for _ in range(steps):
-                step(physicsClientId=cid)
-                P.append(pose(body, physicsClientId=cid))
-                V.append(vel(body, physicsClientId=cid))
-            return P, V
-        return loop
-    if engine == "dart":
-        world, skel = adapter.world, adapter.skeleton
-
-        def loop():
-            P, V = np.empty((steps + 1, 6)), np.empty((steps + 1, 6))
-            P[0], V[0] = skel.getPositions(), skel.getVelocities()
-            for k in range(1, steps + 1):
-                world.step()
-                P[k] = skel.getPositions()
-                V[k] = skel.getVelocities()
-            return P, V
-        return loop
-    raise ValueError(f"no bare loop for engine {engine!r}")
-
-
 def engine_overhead(engine: str, steps: int, repeats: int, progress: bool = False) -> dict:
     """Bare engine loop vs ``adapter.simulate(steps)``, interleaved ``repeats`` times.
 
@@ -157,7 +108,10 @@ def engine_overhead(engine: str, steps: int, repeats: int, progress: bool = Fals
     for r in range(repeats):
         a = cls(problem, DT, integrator)
         try:
-            bare.append(_timed(_bare_loop(engine, a, steps)) / steps)
+            loop = a.bare_loop(steps)
+            if loop is None:
+                raise NoBareLoop(f"{engine} declares no bare loop (Adapter.bare_loop)")
+            bare.append(_timed(loop) / steps)
         finally:
             a.close()
         b = cls(problem, DT, integrator)
@@ -187,25 +141,28 @@ def _batch_inputs(B: int) -> dict:
                 angular_velocity=BATCH_OMEGA_SCALE * rng.normal(size=(B, 3)))
 
 
-def mujoco_bare_step(steps: int) -> Callable[[], float]:
-    """A timer of one bare ``mj_step`` loop on the case's MuJoCo world (built afresh, untimed, by
-    the adapter on every call): returns seconds per step."""
-    from .adapters.base import load_adapter
+class NoBareLoop(Exception):
+    """The engine's adapter offers no bare loop: its overhead cannot be measured."""
+
+
+def yardstick_step(steps: int) -> Callable[[], float]:
+    """A timer of the yardstick engine's bare loop (``BENCH_YARDSTICK``'s ``Adapter.bare_loop``:
+    its own step and state copies) on the case's world, built afresh, untimed, by the adapter on
+    every call: returns seconds per step."""
+    from .adapters.base import BENCH_YARDSTICK, load_adapter
     from .casefile import load_case
 
-    import mujoco
-
-    cls, problem = load_adapter("mujoco"), load_case(CASE)
+    cls, problem = load_adapter(BENCH_YARDSTICK), load_case(CASE)
 
     def timer() -> float:
-        a = cls(problem, DT, "Euler")
-        m, d, step = a.model, a.data, mujoco.mj_step
-        t0 = time.perf_counter()
-        for _ in range(steps):
-            step(m, d)
-        t = (time.perf_counter() - t0) / steps
-        a.close()
-        return t
+        a = cls(problem, DT, cls.offered_integrators()[0])
+        try:
+            loop = a.bare_loop(steps)
+            if loop is None:
+                raise NoBareLoop(f"{BENCH_YARDSTICK} declares no bare loop")
+            return _timed(loop) / steps
+        finally:
+            a.close()
     return timer
 
 
@@ -217,7 +174,7 @@ def batched_reference(config: BenchConfig, progress: bool = False) -> dict:
     from .reference_impl.batched import BATCHED_INTEGRATORS, simulate_batch
 
     try:
-        mj_timer = mujoco_bare_step(config.engine_steps)
+        mj_timer = yardstick_step(config.engine_steps)
     except Exception as e:  # MuJoCo missing or broken: batch figures without the ratio
         mj_timer, mj_note = None, f"mujoco unavailable: {type(e).__name__}: {e}"
     else:
@@ -314,13 +271,13 @@ def suite_timing(config: BenchConfig, progress: bool = False) -> dict:
 
 def run_bench(config: BenchConfig, progress: bool = False) -> dict:
     """All three measurements as one JSON-ready document (schema :data:`SCHEMA_VERSION`)."""
-    from .adapters.base import EngineMissing, is_available, load_adapter
+    from .adapters.base import EngineMissing, engine_names, is_available, load_adapter
 
     versions: dict[str, str | None] = {}
     overhead: dict[str, float] = {}
     engine_steps: dict[str, dict] = {}
     skipped: dict[str, str] = {}
-    for engine in BENCH_ENGINES:
+    for engine in engine_names():
         if not is_available(engine):
             skipped[engine] = "not installed"
             versions[engine] = None
@@ -329,8 +286,9 @@ def run_bench(config: BenchConfig, progress: bool = False) -> dict:
         try:
             versions[engine] = load_adapter(engine).engine_version()
             res = engine_overhead(engine, config.engine_steps, config.repeats, progress)
-        except EngineMissing as e:
+        except (EngineMissing, NoBareLoop) as e:
             skipped[engine] = str(e)
+            _log(f"{engine}: skipped ({e})", progress)
             continue
         except Exception as e:  # a broken engine is reported, not a crash of the benchmark
             skipped[engine] = f"failed: {type(e).__name__}: {e}"

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .adapters.base import REFERENCE_ENGINE
 from .casefile import load_case
 from .reference_impl.conventions import Trajectory, angular_velocity_body_from_world
 from .reference_impl.integrators import INTEGRATORS, simulate
@@ -342,7 +343,7 @@ def quiz_rows(problem: Problem, h: float, engines: list[str] | None, log=None) -
         rows.append(QuizRow(f"reference {name}", family, tr.position[2], _angle_z(tr.quaternion_wxyz[2]),
                             tr.linear_velocity[2], tr.angular_velocity[2]))
     for engine in select_engines(engines):
-        if engine == "reference":
+        if engine == REFERENCE_ENGINE:  # its maps are the rows above
             continue
         offered = engine_integrators(engine)
         if offered is None:
@@ -475,7 +476,7 @@ def dzhanibekov_runs(problem: Problem, dt: float, steps: int, engines: list[str]
     out = []
     for engine in select_engines(engines):
         offered = engine_integrators(engine)
-        chosen = REFERENCE_IN_DZHANIBEKOV if engine == "reference" else (offered or ("*",))
+        chosen = REFERENCE_IN_DZHANIBEKOV if engine == REFERENCE_ENGINE else (offered or ("*",))
         for integ in chosen:
             if log:
                 log(f"dzhanibekov: {engine}/{integ}")

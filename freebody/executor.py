@@ -70,7 +70,7 @@ class Task:
 
 def _needed_references(spec: RunSpec) -> tuple[str, ...]:
     """Reference maps that scheme identification compares this run with (as runner.identify)."""
-    if spec.engine == "reference":
+    if spec.is_reference:
         return ()
     return scheme_candidates(spec.integrator)
 
@@ -86,13 +86,13 @@ def plan(specs: list[RunSpec], **run_options) -> list[Task]:
         groups.setdefault((pkey, float(s.dt), int(s.steps)), []).append(i)
 
     def cost(members):
-        return sum(specs[i].steps * (REFERENCE_STEP_WEIGHT if specs[i].engine == "reference" else 1)
+        return sum(specs[i].steps * (REFERENCE_STEP_WEIGHT if specs[i].is_reference else 1)
                    for i in members)
 
     tasks: list[Task] = []
     for group, members in sorted(groups.items(), key=lambda kv: -cost(kv[1])):
         producers = {specs[i].integrator: i for i in members
-                     if specs[i].engine == "reference" and specs[i].precision == "float64"}
+                     if specs[i].is_reference and specs[i].precision == "float64"}
         # the truth's producer needs nothing from the group: a reference run if there is one
         first = min(producers.values(), default=members[0])
         ordered = [first] + [i for i in members if i in producers.values() and i != first] + \

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .adapters.base import REFERENCE_ENGINE
 from .reference_impl.conventions import angular_momentum, kinetic_energy, potential_energy
 from .reference_impl.problem import Body
 from .reference_impl.rotations import geodesic_angle
@@ -197,8 +198,8 @@ def pair_runs(runs: list[dict]) -> list[tuple[dict, dict]]:
     left out when two or more other engines ran (its relation to each engine is the
     'reproduces' column)."""
     engines = {r["engine"] for r in runs if r.get("status") == "ok"}
-    skip_ref = len(engines - {"reference"}) >= 2
-    chosen = [r for r in runs if not (skip_ref and r["engine"] == "reference")]
+    skip_ref = len(engines - {REFERENCE_ENGINE}) >= 2
+    chosen = [r for r in runs if not (skip_ref and r["engine"] == REFERENCE_ENGINE)]
     out = []
     for i, a in enumerate(chosen):
         for b in chosen[i + 1:]:

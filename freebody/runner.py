@@ -16,9 +16,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .adapters.base import (EngineDiverged, EngineMissing, UnknownEngine, is_available, load_adapter,
-                            resolve_engine, engine_names)
-from .capture import capture_output
+from .adapters.base import (REFERENCE_ENGINE, EngineDiverged, EngineMissing, UnknownEngine,
+                            is_available, load_adapter, resolve_engine, engine_names)
+from .adapters.capture import capture_output
 from .errors import InputError
 from .metrics import Series, divergence, summarize
 from .reference_impl.conventions import Trajectory
@@ -47,6 +47,12 @@ class RunSpec:
     dt: float
     steps: int
     precision: str = "float64"
+
+    @property
+    def is_reference(self) -> bool:
+        """Whether this run is one of freebody's own reference maps (the registry's reference
+        engine): shared with scheme identification, never identified itself."""
+        return self.engine == REFERENCE_ENGINE
 
     @property
     def key(self) -> tuple:
@@ -270,9 +276,14 @@ def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: boo
 
     What the engine prints on the C level is captured into the result's ``engine_output``.
     """
+    with capture_output() as captured:  # importing an engine may print (pybullet's banner)
+        cls = _adapter_class(spec.engine)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        with capture_output() as captured:
-            out = _execute(spec, cache, identify_scheme)
+        capture = cls.output_capture() if isinstance(cls, type) else capture_output()
+        with capture as during:
+            out = _execute(spec, cls, cache, identify_scheme)
+    captured.lines.extend(during.lines)
+    captured.total += during.total
     if captured.total:
         r = out.result
         message = r.message
@@ -283,17 +294,24 @@ def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: boo
     return out
 
 
-def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> RunOutput:
+def _adapter_class(engine: str):
+    """The engine's adapter class, or the exception that loading it raised (recorded by
+    _execute as a skipped or failed run)."""
+    try:
+        return load_adapter(engine)
+    except Exception as e:
+        return e
+
+
+def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool) -> RunOutput:
     cache = cache or TruthCache()
     pb = spec.problem
     base = _identity(spec)
     t0 = time.perf_counter()
-    try:
-        cls = load_adapter(spec.engine)
-    except EngineMissing as e:
-        return _no_trajectory(base, "skipped", str(e), 0.0)
-    except Exception as e:  # a broken install is a failure, never a skip
-        return _no_trajectory(base, "failed", f"importing the {spec.engine} adapter failed: {_describe(e)}",
+    if isinstance(cls, EngineMissing):
+        return _no_trajectory(base, "skipped", str(cls), 0.0)
+    if isinstance(cls, BaseException):  # a broken install is a failure, never a skip
+        return _no_trajectory(base, "failed", f"importing the {spec.engine} adapter failed: {_describe(cls)}",
                               time.perf_counter() - t0)
     version = settings = adapter = None
     try:
@@ -305,10 +323,10 @@ def _execute(spec: RunSpec, cache: TruthCache | None, identify_scheme: bool) -> 
         finally:
             adapter.close()
         sim = Simulated(trajectory, None, "", version, settings, time.perf_counter() - t0,
-                        getattr(adapter, "compile_time_s", None))
+                        adapter.compile_time_s)
     except EngineDiverged as e:
         sim = Simulated(e.trajectory, e.t, e.reason, version, settings, time.perf_counter() - t0,
-                        getattr(adapter, "compile_time_s", None))
+                        adapter.compile_time_s if adapter is not None else None)
     except Exception as e:
         return _no_trajectory(base, "failed", _describe(e), time.perf_counter() - t0, version, settings)
     return finish(spec, sim, cache, identify_scheme, compare_with=cls.compare_with)
@@ -362,7 +380,7 @@ def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bo
         metrics = {k: (v if k == "rotation_orthonormality_error_max" else None) for k, v in metrics.items()}
         metrics.update(_prefix_metrics(pb, trajectory, truth, diverged_at))
     matches = vs_engine = None
-    if identify_scheme and spec.engine != "reference" and status == "ok":
+    if identify_scheme and not spec.is_reference and status == "ok":
         matches = identify(pb, trajectory, spec, cache)
         if compare_with:
             vs_engine = compare_with_engine(pb, trajectory, spec, compare_with, cache)

@@ -87,7 +87,7 @@ class GroupTruthCache(TruthCache):
     def offer(self, spec: RunSpec, out: RunOutput) -> None:
         """Keep a reference engine run's trajectory as the reference map of the same name."""
         tr = out.trajectory
-        if (spec.engine != "reference" or spec.precision != "float64"
+        if (not spec.is_reference or spec.precision != "float64"
                 or spec.integrator not in SHAREABLE_REFERENCES or tr is None
                 or len(tr) != spec.steps + 1 or out.result.status not in ("ok", "diverged")):
             return

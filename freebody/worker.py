@@ -128,7 +128,7 @@ class Runner:
         what the oracle prints is discarded."""
         import numpy as np
 
-        from .capture import capture_output
+        from .adapters.capture import capture_output
 
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"), capture_output():
@@ -142,7 +142,7 @@ def preimport(engines) -> None:
     discarded), as the parent did while expanding the runs: so that a run's captured engine output
     does not depend on whether it was the first run of its engine in its process."""
     from .adapters.base import is_available, load_adapter
-    from .capture import capture_output
+    from .adapters.capture import capture_output
 
     for name in engines:
         try:

@@ -168,6 +168,22 @@ class Trajectory:
         return Trajectory(self.t[:n], self.position[:n], self.quaternion_wxyz[:n],
                           self.linear_velocity[:n], self.angular_velocity[:n], ortho)
 
+    def tail(self, start: int) -> "Trajectory":
+        """The samples from index ``start`` on (views, no copy)."""
+        ortho = None if self.orthonormality_error is None else self.orthonormality_error[start:]
+        return Trajectory(self.t[start:], self.position[start:], self.quaternion_wxyz[start:],
+                          self.linear_velocity[start:], self.angular_velocity[start:], ortho)
+
+    @classmethod
+    def concatenate(cls, pieces: "list[Trajectory]") -> "Trajectory":
+        """Consecutive pieces (no repeated samples) as one trajectory (copies)."""
+        ortho = None
+        if all(p.orthonormality_error is not None for p in pieces):
+            ortho = np.concatenate([p.orthonormality_error for p in pieces])
+        return cls(*(np.concatenate([getattr(p, f) for p in pieces])
+                     for f in ("t", "position", "quaternion_wxyz", "linear_velocity",
+                               "angular_velocity")), ortho)
+
     def without_orthonormality(self) -> "Trajectory":
         """The same samples without the matrix integrators' orthonormality error (as truths have)."""
         return Trajectory(self.t, self.position, self.quaternion_wxyz, self.linear_velocity,

@@ -12,8 +12,10 @@ from freebody.runner import RunSpec, execute, expand
 @pytest.fixture
 def fake_registry(monkeypatch):
     reg = dict(base.ENGINES)
-    reg["absent"] = ("freebody_test_engine_that_is_not_installed", "fake_engines.missing_engine_adapter", "X")
-    reg["broken"] = ("numpy", "fake_engines.broken_engine_adapter", "X")
+    reg["absent"] = base.EngineEntry("freebody_test_engine_that_is_not_installed",
+                                     "fake_engines.missing_engine_adapter", "X",
+                                     "pip install freebody-absent-engine")
+    reg["broken"] = base.EngineEntry("numpy", "fake_engines.broken_engine_adapter", "X")
     monkeypatch.setattr(base, "ENGINES", reg)
     monkeypatch.syspath_prepend(str(__import__("pathlib").Path(__file__).parent))
     return reg
@@ -25,7 +27,7 @@ def test_missing_engine_is_skipped_with_install_hint(fake_registry):
     assert [s.integrator for s in specs] == ["*"]
     r = execute(specs[0]).result
     assert r.status == "skipped"
-    assert "pip install" in r.message and "absent" in r.message
+    assert "pip install freebody-absent-engine" in r.message and "absent" in r.message
 
 
 def test_broken_engine_is_failed_not_skipped(fake_registry):
@@ -51,5 +53,5 @@ def test_entry_point_adapters_join_the_registry(monkeypatch):
 
     monkeypatch.setattr(base.importlib.metadata, "entry_points", lambda group: [EP()] if group == base.ENTRY_POINT_GROUP else [])
     reg = base.registry()
-    assert reg["thirdparty"] == ("thirdparty_pkg", "thirdparty_pkg.adapter", "ThirdPartyAdapter")
+    assert reg["thirdparty"][:3] == ("thirdparty_pkg", "thirdparty_pkg.adapter", "ThirdPartyAdapter")
     assert list(reg)[: len(base.ENGINES)] == list(base.ENGINES)

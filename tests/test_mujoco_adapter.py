@@ -11,7 +11,7 @@ import pytest
 
 mujoco = pytest.importorskip("mujoco", reason="mujoco not installed (pip install 'freebody[engines]')")
 
-from freebody.adapters.base import Adapter, EngineDiverged  # noqa: E402
+from freebody.adapters.base import EngineDiverged  # noqa: E402
 from freebody.adapters import mujoco_adapter  # noqa: E402
 from freebody.adapters.mujoco_adapter import MujocoAdapter  # noqa: E402
 from freebody.reference_impl.conventions import angular_momentum  # noqa: E402
@@ -76,7 +76,8 @@ def _max_angle(a, b) -> float:
 
 def test_readback_at_t0_equals_initial_state():
     pb = _general_problem()
-    x, q, v, w = MujocoAdapter(pb, 0.01, "Euler").read_state()
+    s0 = MujocoAdapter(pb, 0.01, "Euler").simulate(1).state(0)
+    x, q, v, w = s0.position, s0.quaternion_wxyz, s0.linear_velocity, s0.angular_velocity
     init = pb.initial
     assert np.max(np.abs(x - init.position)) <= READBACK_TOL
     assert np.max(np.abs(q - init.quaternion_wxyz)) <= READBACK_TOL
@@ -147,6 +148,19 @@ def test_flat_body_with_off_diagonal_inertia_builds():
         assert np.max(np.abs(tr.angular_velocity - ref.angular_velocity)) <= SHORT_RUN_TOL
 
 
+def _step_by_step(pb: Problem, dt: float, integrator: str, steps: int):
+    """(adapter, trajectory or EngineDiverged) of the plainest path through advance(): no
+    mujoco.rollout, the warning counters read after every step (the yardstick of the fast paths)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mujoco_adapter, "_ROLLOUT_MIN_STEPS", 10 ** 9)
+        mp.setattr(mujoco_adapter, "_CHECK_EVERY", 1)
+        a = MujocoAdapter(pb, dt, integrator)
+        try:
+            return a, a.simulate(steps)
+        except EngineDiverged as e:
+            return a, e
+
+
 def _push_loads():
     return (Load(force=np.array([3.0, -1.0, 2.0]), body_point=np.array([0.4, -0.2, 0.3]), steps=1),)
 
@@ -175,9 +189,10 @@ def test_body_point_push_torque_and_clear():
     assert not np.any(a.data.xfrc_applied)
 
 
-def test_step_by_step_loop_clears_xfrc_and_matches_fast_simulate():
-    """The base loop (apply_loads/step/read_state/instability) gives the fast simulate()'s result,
-    with world-point, body-point, world- and body-torque loads switching on and off."""
+def test_step_by_step_path_clears_xfrc_and_matches_fast_path():
+    """The plainest path (a step at a time, counters read every step) gives the fast path's
+    result, with world-point, body-point, world- and body-torque loads switching on and off, and
+    leaves xfrc_applied cleared."""
     loads = _push_loads() + (
         Load(force=np.array([0.0, 2.0, -1.0]), point=np.array([0.5, 0.5, 0.5]), start=0.05, steps=3),
         Load(torque=np.array([0.2, 0.0, -0.1]), start=0.02, end=0.12),
@@ -185,14 +200,11 @@ def test_step_by_step_loop_clears_xfrc_and_matches_fast_simulate():
     )
     dt, steps = 0.01, 20
     pb = _general_problem(loads=loads)
-    fast = MujocoAdapter(pb, dt, "Euler").simulate(steps)
     a = MujocoAdapter(pb, dt, "Euler")
-    a.apply_loads(0)
-    assert np.any(a.data.xfrc_applied[1])
-    a.step()
-    a.apply_loads(1)  # the push lasted one step; nothing else is on at k = 1
+    fast = a.simulate(steps)
     assert not np.any(a.data.xfrc_applied)
-    slow = Adapter.simulate(MujocoAdapter(pb, dt, "Euler"), steps)
+    b, slow = _step_by_step(pb, dt, "Euler", steps)
+    assert not np.any(b.data.xfrc_applied)
     for field in ("position", "quaternion_wxyz", "linear_velocity", "angular_velocity"):
         assert np.array_equal(getattr(fast, field), getattr(slow, field)), field
     ref = simulate(pb, "semi-implicit-explicit-gyro", dt, steps)
@@ -227,10 +239,9 @@ def test_blow_up_raises_engine_diverged(tmp_path, monkeypatch):
     assert e.t < 30.0
     assert len(e.trajectory) == round(e.t / 0.01) + 1
     assert np.max(np.abs(e.trajectory.angular_velocity[-1])) > 1e6  # not reset to rest
-    # the step-by-step loop sees the same warning through instability()
-    with pytest.raises(EngineDiverged) as info2:
-        Adapter.simulate(MujocoAdapter(pb, 0.01, "Euler"), 3000)
-    assert info2.value.t == e.t
+    # the step-by-step path sees the same warning at the same step
+    _, e2 = _step_by_step(pb, 0.01, "Euler", 3000)
+    assert isinstance(e2, EngineDiverged) and e2.t == e.t
 
 
 def test_recorded_settings():
@@ -259,7 +270,7 @@ def test_integrators_and_conventions():
         MujocoAdapter(_general_problem(), 0.01, "rk4")
 
 
-# --- simulate()'s fast paths (mujoco.rollout, the chunked Python loop) against the base loop ------
+# --- advance()'s fast paths (mujoco.rollout, the chunked Python loop) against a step at a time ----
 
 def _assert_same_trajectory(a, b):
     """Bit-for-bit equality (NaN == NaN) of two trajectories, t included."""
@@ -285,7 +296,7 @@ def test_rollout_path_equals_base_loop(integrator, loaded, monkeypatch):
     fast = a.simulate(steps)
     assert a._roller is not None  # the rollout path was taken
     assert not np.any(a.data.xfrc_applied)
-    slow = Adapter.simulate(MujocoAdapter(pb, dt, integrator), steps)
+    _, slow = _step_by_step(pb, dt, integrator, steps)
     _assert_same_trajectory(fast, slow)
     monkeypatch.setattr(mujoco_adapter, "_ROLLOUT_MIN_STEPS", 10 ** 9)
     b = MujocoAdapter(pb, dt, integrator)
@@ -330,14 +341,13 @@ def test_chunked_loop_reports_divergence_at_the_step(check_every, tmp_path, monk
     a = MujocoAdapter(pb, 0.01, "Euler")
     with pytest.raises(EngineDiverged) as fast:
         a.simulate(3000)
-    b = MujocoAdapter(pb, 0.01, "Euler")
-    with pytest.raises(EngineDiverged) as slow:
-        Adapter.simulate(b, 3000)
-    assert fast.value.t == slow.value.t and fast.value.reason == slow.value.reason
+    b, slow = _step_by_step(pb, 0.01, "Euler", 3000)
+    assert isinstance(slow, EngineDiverged)
+    assert fast.value.t == slow.t and fast.value.reason == slow.reason
     assert "BADQACC" in fast.value.reason
     assert round(fast.value.t / 0.01) % 64 != 0  # the bad step lies inside a chunk of 64
-    _assert_same_trajectory(fast.value.trajectory, slow.value.trajectory)
-    assert a.k == b.k == round(slow.value.t / 0.01)
+    _assert_same_trajectory(fast.value.trajectory, slow.trajectory)
+    assert a.k == b.k == round(slow.t / 0.01)
     assert [w.number for w in a._all_warnings] == [w.number for w in b._all_warnings]
     assert np.array_equal(a.data.qvel, b.data.qvel) and a.data.time == b.data.time
 
@@ -354,11 +364,10 @@ def test_divergence_time_equals_base_loop(path, tmp_path, monkeypatch):
     with pytest.raises(EngineDiverged) as fast:
         a.simulate(3000)
     assert (a._roller is not None) == (path == "rollout")
-    b = MujocoAdapter(pb, 0.01, "Euler")
-    with pytest.raises(EngineDiverged) as slow:
-        Adapter.simulate(b, 3000)
-    assert fast.value.t == slow.value.t and fast.value.reason == slow.value.reason
-    _assert_same_trajectory(fast.value.trajectory, slow.value.trajectory)
+    b, slow = _step_by_step(pb, 0.01, "Euler", 3000)
+    assert isinstance(slow, EngineDiverged)
+    assert fast.value.t == slow.t and fast.value.reason == slow.reason
+    _assert_same_trajectory(fast.value.trajectory, slow.trajectory)
     assert [w.number for w in a._all_warnings] == [w.number for w in b._all_warnings]
 
 
@@ -372,8 +381,11 @@ def test_rollout_stopped_by_an_unwatched_warning_carries_on(tmp_path, monkeypatc
     a = MujocoAdapter(pb, 0.01, "Euler")
     fast = a.simulate(300)
     assert a._roller is not None
-    b = MujocoAdapter(pb, 0.01, "Euler")
-    slow = Adapter.simulate(b, 300)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mujoco_adapter, "_ROLLOUT_MIN_STEPS", 10 ** 9)
+        mp.setattr(mujoco_adapter, "_CHECK_EVERY", 1)
+        b = MujocoAdapter(pb, 0.01, "Euler")
+        slow = b.simulate(300)
     _assert_same_trajectory(fast, slow)
     assert np.isnan(fast.angular_velocity[-1]).all()  # stepped on past the blow-up
     assert a.data.warning[int(mujoco.mjtWarning.mjWARN_BADQACC)].number > 0
