@@ -5,23 +5,24 @@ DART's conventions and what this adapter converts:
 - No quaternion anywhere in the API.  Poses are ``Isometry3`` transforms (3x3 rotation matrix
   body -> world, translation of the body origin in world, m).  The FreeJoint's generalized
   positions are ``[rotation vector (log map, rad, 3), translation (m, 3)]``.  The adapter writes
-  the pose with ``FreeJoint.setTransform(T, World)`` and reads it back as
-  ``getWorldTransform().rotation()`` converted with ``rotations.quat_from_matrix`` (``read_state``)
-  or, in the fast ``simulate`` loop, as the joint positions converted with
-  ``rotations.quat_from_rotvec`` (the FreeJoint's rotation is the exponential map of them).
+  the pose with ``FreeJoint.setTransform(T, World)`` (checked against ``getWorldTransform()``)
+  and reads it back as the joint positions converted with ``rotations.quat_from_rotvec`` (the
+  FreeJoint's rotation is the exponential map of them).
 - The BodyNode's COM offset is set to zero, so body origin = COM: translation = freebody position.
 - Velocities: the FreeJoint's generalized velocities are ``[omega (3), v (3)]``; in DART 6.20 both
   are world-frame (omega in rad/s, v the body-origin velocity in m/s), older releases used the
   body-frame spatial velocity.  The adapter never relies on that: it writes velocities with the
-  frame-explicit ``setAngularVelocity(w, World, World)`` / ``setLinearVelocity(v, World, World)``,
-  reads them with ``getAngularVelocity(World, World)`` / ``getCOMLinearVelocity(World, World)``,
-  and the fast loop uses the raw coordinates only after :func:`_coordinate_frames` has probed the
+  frame-explicit ``setAngularVelocity(w, World, World)`` / ``setLinearVelocity(v, World, World)``
+  (checked with ``getAngularVelocity(World, World)`` / ``getCOMLinearVelocity(World, World)``),
+  and ``advance`` uses the raw coordinates only after :func:`_coordinate_frames` has probed the
   installed version and found them world-frame (or body-frame, converted with ``R``).
 - Inertia: the full 3x3 tensor about the COM in the body frame, given as
   ``dartpy.dynamics.Inertia(mass, com=0, moment=I_body)`` (no diagonalisation needed).
 - Loads: ``addExtForce(f, offset, isForceLocal=False, isOffsetLocal=...)`` - the offset is a
   BODY-frame point by default; ``isOffsetLocal=False`` makes it a world point.  Couples go through
-  ``addExtTorque(tau, isLocal)``.  DART clears external forces after every ``World.step``.
+  ``addExtTorque(tau, isLocal)``.  DART clears external forces after every ``World.step``:
+  ``advance`` applies each active load of the step's segment of ``self.loads``, one by one, before
+  every step.
 - Gravity: the World's own gravity (default (0, 0, -9.81) m/s^2), set to the case's.
 - Integrator: one, semi-implicit Euler with an explicit gyroscopic term (freebody's reference map
   ``semi-implicit-explicit-gyro``).  Precision: float64 only.
@@ -31,8 +32,9 @@ DART's conventions and what this adapter converts:
 - Divergence: DART turns non-finite, then silently substitutes identity transforms and zero
   accelerations and prints three warning lines to the C++ stderr on every later step.  The
   adapter redirects file descriptor 2 to a temporary file around stepping (once around the whole
-  ``simulate`` loop), detects non-finite joint coordinates (or a pose that suddenly reads as
-  identity at rest), and puts the first captured lines into the :class:`EngineDiverged` reason.
+  ``advance`` loop), detects non-finite joint coordinates (or a pose that suddenly reads as
+  identity at rest) and DART's own warnings, and puts the first captured lines into the
+  :class:`EngineDiverged` reason.
 """
 from __future__ import annotations
 
@@ -40,14 +42,14 @@ import os
 import re
 import sys
 import tempfile
-from typing import ClassVar
+from typing import Callable, ClassVar
 
 import dartpy
 import numpy as np
 
 from ..reference_impl.conventions import Trajectory
-from ..reference_impl.rotations import matrix_from_quat, quat_from_matrix, quat_from_rotvec
-from .base import Adapter, EngineDiverged, _truncate
+from ..reference_impl.rotations import matrix_from_quat, quat_from_rotvec
+from .base import Adapter, EngineDiverged
 
 _WORLD = dartpy.dynamics.Frame.World()
 
@@ -55,7 +57,7 @@ _WORLD = dartpy.dynamics.Frame.World()
 # (mass, inertia, pose, velocities, gravity, time step), all copied or converted in float64.
 _READBACK_RTOL = 1e-9
 
-# The fast simulate() loop checks the recorded coordinates for divergence every this many steps
+# advance() checks the recorded coordinates for divergence every this many steps
 # (a vectorised check; a diverged run overshoots by at most this many steps of DART warnings).
 _CHECK_EVERY = 64
 
@@ -69,14 +71,12 @@ class _Fd2Capture:
     """Redirect file descriptor 2 (the C/C++ stderr) to a temporary file while in the block.
 
     fd 2 is restored on exit, even on exceptions.  ``has_output()`` is one ``fstat``; after exit
-    ``lines`` holds the captured lines (ANSI colour codes stripped).  ``tmp``: a reusable binary
-    temporary file (emptied after each use, left open), or None for a fresh one closed on exit.
+    ``lines`` holds the captured lines (ANSI colour codes stripped).
     """
 
-    def __init__(self, tmp=None):
+    def __init__(self):
         self.lines: list[str] = []
-        self._own = tmp is None
-        self._tmp = tmp
+        self._tmp = None
         self._saved = -1
 
     def __enter__(self) -> "_Fd2Capture":
@@ -84,15 +84,13 @@ class _Fd2Capture:
             sys.stderr.flush()
         except (AttributeError, ValueError):
             pass
-        if self._tmp is None:
-            self._tmp = tempfile.TemporaryFile(mode="w+b")
+        self._tmp = tempfile.TemporaryFile(mode="w+b")
         self._saved = os.dup(2)
         try:
             os.dup2(self._tmp.fileno(), 2)
         except BaseException:
             os.close(self._saved)
-            if self._own:
-                self._tmp.close()
+            self._tmp.close()
             raise
         return self
 
@@ -116,11 +114,7 @@ class _Fd2Capture:
             try:
                 self.lines = self.read_lines()
             finally:
-                if self._own:
-                    self._tmp.close()
-                elif self.lines:
-                    os.ftruncate(self._tmp.fileno(), 0)
-                    os.lseek(self._tmp.fileno(), 0, os.SEEK_SET)
+                self._tmp.close()
 
 
 def _is_dart_instability(lines: list[str]) -> bool:
@@ -177,11 +171,8 @@ def _coordinate_frames() -> str:
 class DartAdapter(Adapter):
     name: ClassVar[str] = "dart"
     import_name: ClassVar[str] = "dartpy"
-    install_hint: ClassVar[str] = "pip install dartpy"
     integrators: ClassVar[tuple[str, ...]] = ("semi-implicit-euler",)
     precisions: ClassVar[tuple[str, ...]] = ("float64",)
-    supports_point_force: ClassVar[bool] = True
-    supports_body_torque: ClassVar[bool] = True
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "none: rotation matrices (Isometry3); FreeJoint positions are "
                             "[rotation vector (log map), translation]",
@@ -204,12 +195,6 @@ class DartAdapter(Adapter):
 
     # --- building --------------------------------------------------------------------------------
     def build(self) -> None:
-        if self.integrator not in self.integrators:
-            raise ValueError(f"dart offers the integrators {self.integrators}, "
-                             f"not {self.integrator!r}")
-        if self.precision not in self.precisions:
-            raise ValueError(f"dart offers the precisions {self.precisions}, "
-                             f"not {self.precision!r}")
         pb = self.problem
         world = dartpy.simulation.World()
 
@@ -262,79 +247,21 @@ class DartAdapter(Adapter):
 
         self.world, self.skeleton, self.joint, self.body = world, skel, joint, body
         self._frames = _coordinate_frames()
-        self._segments = _load_segments(pb, self.dt, body)
-        self._segment_at = dict(self._segments)
-        # for instability(): whether the last state seen was not identity-at-rest
-        self._last_nontrivial = bool(np.any(skel.getPositions()) or np.any(skel.getVelocities()))
-        self._captured: list[str] = []
-        self._step_tmp = None  # fd 2 capture file of step(), created on first use
-
-    def close(self) -> None:
-        if self._step_tmp is not None:
-            self._step_tmp.close()
-            self._step_tmp = None
-
-    # --- loads -----------------------------------------------------------------------------------
-    def apply_loads(self, k: int) -> None:
-        for fn, args in _calls_at(self._segments, k):
-            fn(*args)
+        # segment k0 -> the (bound method, args) calls putting its loads on the body, load by load
+        self._calls = {seg.k0: tuple(c for ld in seg.loads for c in _load_calls(body, ld))
+                       for seg in self.loads.segments}
 
     # --- stepping --------------------------------------------------------------------------------
-    def step(self) -> None:
-        if self._step_tmp is None:
-            self._step_tmp = tempfile.TemporaryFile(mode="w+b")
-        with _Fd2Capture(self._step_tmp) as cap:
-            self.world.step()
-        if cap.lines:
-            self._captured.extend(cap.lines)
-        self.k += 1
+    def advance(self, steps: int) -> Trajectory:
+        """Step ``steps`` times from the current state, shaped for speed.
 
-    def read_state(self):
-        """(position (3,) m COM world, quaternion (4,) (w, x, y, z) body -> world,
-        linear velocity (3,) m/s COM world, angular velocity (3,) rad/s world), read through
-        DART's frame-explicit getters; NaN pose once DART's coordinates are non-finite."""
-        body = self.body
-        pos = self.skeleton.getPositions()
-        if not np.isfinite(pos).all():
-            # DART would hand back an identity transform here (and print its warnings to the
-            # C++ stderr while computing it): report NaN pose and the raw velocities instead,
-            # without touching anything that updates the transform.
-            P, V = pos.reshape(1, 6), np.asarray(self.skeleton.getVelocities()).reshape(1, 6)
-            tr = self._trajectory(P, V)
-            return (tr.position[0], tr.quaternion_wxyz[0], tr.linear_velocity[0],
-                    tr.angular_velocity[0])
-        T = body.getWorldTransform()
-        return (T.translation(), quat_from_matrix(T.rotation()),
-                body.getCOMLinearVelocity(_WORLD, _WORLD), body.getAngularVelocity(_WORLD, _WORLD))
-
-    def instability(self) -> str | None:
-        pos = np.asarray(self.skeleton.getPositions())
-        vel = np.asarray(self.skeleton.getVelocities())
-        captured, self._captured = self._captured, []
-        if not (np.isfinite(pos).all() and np.isfinite(vel).all()):
-            return "DART state turned non-finite" + _reason_lines(captured)
-        trivial = not pos.any() and not vel.any()
-        sudden = trivial and self._last_nontrivial
-        self._last_nontrivial = not trivial
-        if sudden:
-            return ("DART pose jumped to identity with zero velocity (its substitute for a "
-                    "non-finite state)" + _reason_lines(captured))
-        if _is_dart_instability(captured):
-            return "DART reported non-finite values" + _reason_lines(captured)
-        if captured:
-            sys.stderr.write("\n".join(captured) + "\n")
-        return None
-
-    # --- the fast loop ---------------------------------------------------------------------------
-    def simulate(self, steps: int) -> Trajectory:
-        """Step ``steps`` times; same Trajectory as :meth:`Adapter.simulate`, faster.
-
-        Per step: the loads of the step (precomputed per load segment), ``World.step``, and a copy
-        of the FreeJoint's 6 positions and 6 velocities; conversion to quaternions and world-frame
-        velocities happens once at the end.  fd 2 is captured around the whole loop.  Every
-        ``_CHECK_EVERY`` steps the new rows are checked for non-finite values, a sudden
-        identity-at-rest state and DART's own warnings; EngineDiverged carries the trajectory up
-        to and including the first bad sample.
+        Per step: the loads of the step (precomputed calls per load segment), ``World.step``, and
+        a copy of the FreeJoint's 6 positions and 6 velocities; conversion to quaternions and
+        world-frame velocities happens once at the end.  fd 2 is captured around the whole loop.
+        Every ``_CHECK_EVERY`` steps (counted from this call's first step) and at the last step
+        the new rows are checked for non-finite values, a sudden identity-at-rest state and DART's
+        own warnings; EngineDiverged carries the trajectory up to and including the first bad
+        sample (and ``self.k`` is that sample's step).
         """
         skel, world = self.skeleton, self.world
         # FreeJoint coordinates as recorded, one row per sample (converted once at the end):
@@ -343,47 +270,60 @@ class DartAdapter(Adapter):
         P = np.empty((steps + 1, 6))
         V = np.empty((steps + 1, 6))
         P[0], V[0] = skel.getPositions(), skel.getVelocities()
-        segment_at = self._segment_at
         k0 = self.k
-        calls = _calls_at(self._segments, k0)
         checked = 0  # rows 0..checked have been checked
         diverged: tuple[int, str] | None = None
         with _Fd2Capture() as cap:
-            for k in range(steps):
-                calls = segment_at.get(k0 + k, calls)
-                for fn, args in calls:
-                    fn(*args)
-                world.step()
-                P[k + 1] = skel.getPositions()
-                V[k + 1] = skel.getVelocities()
-                if (k + 1) % _CHECK_EVERY == 0 or k + 1 == steps:
-                    diverged = _first_bad_row(P, V, checked, k + 1)
-                    if diverged is None and cap.has_output():
-                        lines = cap.read_lines()
-                        if _is_dart_instability(lines):
-                            diverged = (k + 1, "DART reported non-finite values")
-                    checked = k + 1
-                    if diverged is not None:
-                        break
+            for seg, ka, kb in self.loads.stretches(k0, k0 + steps):
+                calls = self._calls[seg.k0]
+                for i in range(ka - k0, kb - k0):
+                    for fn, args in calls:
+                        fn(*args)
+                    world.step()
+                    P[i + 1] = skel.getPositions()
+                    V[i + 1] = skel.getVelocities()
+                    if (i + 1) % _CHECK_EVERY == 0 or i + 1 == steps:
+                        diverged = _first_bad_row(P, V, checked, i + 1)
+                        if diverged is None and cap.has_output():
+                            if _is_dart_instability(cap.read_lines()):
+                                diverged = (i + 1, "DART reported non-finite values")
+                        checked = i + 1
+                        if diverged is not None:
+                            break
+                if diverged is not None:
+                    break
         n = (diverged[0] + 1) if diverged is not None else steps + 1
         self.k = k0 + n - 1
-        out = self._trajectory(P[:n], V[:n])
+        out = self._trajectory(P[:n], V[:n], k0)
         if diverged is not None:
-            raise EngineDiverged(diverged[0] * self.dt, diverged[1] + _reason_lines(cap.lines),
-                                 _truncate(out, n))
+            raise EngineDiverged(self.k * self.dt, diverged[1] + _reason_lines(cap.lines), out)
         if cap.lines:  # unexpected output that was no instability: do not hide it
             sys.stderr.write("\n".join(cap.lines) + "\n")
         return out
 
-    def _trajectory(self, P: np.ndarray, V: np.ndarray) -> Trajectory:
-        """Canonical trajectory from FreeJoint coordinates as recorded.
+    def bare_loop(self, steps: int) -> Callable[[], object]:
+        """world.step + getPositions/getVelocities into preallocated arrays, ``steps`` times on
+        this adapter's world (``freebody bench``)."""
+        world, skel = self.world, self.skeleton
+
+        def loop():
+            P, V = np.empty((steps + 1, 6)), np.empty((steps + 1, 6))
+            P[0], V[0] = skel.getPositions(), skel.getVelocities()
+            for k in range(1, steps + 1):
+                world.step()
+                P[k] = skel.getPositions()
+                V[k] = skel.getVelocities()
+            return P, V
+        return loop
+
+    def _trajectory(self, P: np.ndarray, V: np.ndarray, k0: int) -> Trajectory:
+        """Canonical trajectory from FreeJoint coordinates as recorded, the first row at t = k0 dt.
 
         P : (n, 6) [rotation vector of R body -> world (rad), body origin = COM (m, world)].
         V : (n, 6) [w (rad/s), v of the COM (m/s)], world frame (DART 6.20) or body frame
             (``self._frames == "body"``, rotated to world here).
         Non-finite rows stay non-finite (never replaced by DART's identity substitute).
         """
-        n = len(P)
         with np.errstate(invalid="ignore", over="ignore"):
             quat = quat_from_rotvec(P[:, :3])
             if self._frames == "world":
@@ -392,7 +332,7 @@ class DartAdapter(Adapter):
                 R = matrix_from_quat(quat)
                 w = np.einsum("nij,nj->ni", R, V[:, :3])
                 v = np.einsum("nij,nj->ni", R, V[:, 3:])
-        return Trajectory(t=np.arange(n) * self.dt + 0.0, position=P[:, 3:].copy(),
+        return Trajectory(t=(k0 + np.arange(len(P))) * self.dt, position=P[:, 3:].copy(),
                           quaternion_wxyz=quat, linear_velocity=v, angular_velocity=w)
 
 
@@ -436,31 +376,6 @@ def _load_calls(body, ld) -> list[tuple]:
         calls.append((body.addExtTorque, (np.array(ld.torque, dtype=float), False)))
     if ld.body_torque.any():
         calls.append((body.addExtTorque, (np.array(ld.body_torque, dtype=float), True)))
-    return calls
-
-
-def _load_segments(problem, dt: float, body) -> list[tuple[int, tuple]]:
-    """[(k0, calls)], k0 ascending from 0: from step k0 until the next k0 the active loads are
-    applied by these (bound method, args) calls."""
-    starts = {0}
-    for ld in problem.loads:
-        for k in ld.step_range(dt):
-            if np.isfinite(k) and k >= 0:
-                starts.add(int(k))
-    segments = []
-    for k0 in sorted(starts):
-        calls = []
-        for ld in problem.active_loads(k0, dt):
-            calls.extend(_load_calls(body, ld))
-        segments.append((k0, tuple(calls)))
-    return segments
-
-
-def _calls_at(segments, k: int) -> tuple:
-    calls = ()
-    for k0, c in segments:
-        if k0 <= k:
-            calls = c
     return calls
 
 

@@ -29,7 +29,8 @@ PyBullet's conventions and what this adapter converts:
 - Loads: ``applyExternalForce(..., flags=WORLD_FRAME)`` at a world point (the engine forms the
   torque (point - COM) x f itself) and ``applyExternalTorque(..., flags=WORLD_FRAME)`` for couples
   (world frame in both variants in PyBullet 3.2.7, checked by the tests).  Both last one
-  ``stepSimulation``.
+  ``stepSimulation``: advance() applies them before every step on which a load acts, from the
+  segments of ``self.loads``.
 - Gravity: ``setGravity`` (engine gravity, world frame).
 
 Engine defaults the adapter changes (each read back, or probed, and recorded in ``settings``):
@@ -47,18 +48,17 @@ instability of its own; the harness detects divergence from the state.
 """
 from __future__ import annotations
 
-import bisect
 import importlib.metadata
-from typing import ClassVar
+from typing import Callable, ClassVar
 
 import numpy as np
 import pybullet
 
 from ..reference_impl.conventions import Trajectory, quat_wxyz_from_xyzw, quat_xyzw_from_wxyz
-from ..reference_impl.problem import Load
 from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_conjugate,
                                         quat_from_matrix, quat_multiply, quat_normalize)
 from .base import Adapter
+from .loads import Segment
 
 # The multibody velocity clamp is lifted to this (rad/s on each world angular-velocity coordinate,
 # m/s on each linear one): far beyond any bound at which the harness declares a divergence.
@@ -75,47 +75,35 @@ DEFAULT_MAX_COORDINATE_VELOCITY = 100.0  # multibody only; maximal bodies have n
 _READBACK_RTOL = 1e-12
 _PROBE_RTOL = 1e-9
 _PROBE_SPEED = 300.0  # m/s and rad/s: one world coordinate >= 300 / sqrt(3) > 100 in any frame
-_INITIAL_STATE_TOL = 1e-9  # build() re-reads the initial state (the tests check 1e-12)
+_INITIAL_STATE_TOL = 1e-9  # build() re-reads the initial state (measured ~5e-16)
 
 
-class _LoadPlan:
-    """The loads active over an interval of steps, grouped by what they need at each step.
+class _EngineLoads:
+    """A segment's loads as PyBullet takes them (lists for its calls; forces of zero dropped).
 
+    com_force : [3] N world, the sum of the forces at the COM, or None.
     world_point_forces : [(force [3] N world, point [3] m world)], applied as they are.
     body_point_forces : [(force [3] N world, body_point (3,) m body frame)].
-    com_force : [3] N world (sum of the forces at the COM), or None.
-    torque : (3,) N m world, sum of the world couples; torque_list its list, or None when zero.
-    body_torque : (3,) N m body frame, sum of the body couples, or None when zero.
+    torque : (3,) N m world, the sum of the world couples; torque_list its list, or None when zero.
+    body_torque : (3,) N m body frame, the sum of the body couples, or None.
     """
 
-    def __init__(self, loads: tuple[Load, ...]):
-        self.world_point_forces, self.body_point_forces = [], []
-        com = np.zeros(3)
-        has_com = False
-        self.torque = np.zeros(3)
-        body_torque = np.zeros(3)
-        for ld in loads:
-            if np.any(ld.force != 0.0):
-                if ld.point is not None:
-                    self.world_point_forces.append((ld.force.tolist(), ld.point.tolist()))
-                elif ld.body_point is not None:
-                    self.body_point_forces.append((ld.force.tolist(), np.array(ld.body_point)))
-                else:
-                    com = com + ld.force
-                    has_com = True
-            self.torque = self.torque + ld.torque
-            body_torque = body_torque + ld.body_torque
-        self.com_force = com.tolist() if has_com else None
-        self.body_torque = body_torque if np.any(body_torque != 0.0) else None
+    def __init__(self, seg: Segment):
+        self.com_force = None if seg.com_force is None else seg.com_force.tolist()
+        self.world_point_forces = [(f.tolist(), p.tolist()) for p, f in seg.point_forces
+                                   if np.any(f != 0.0)]
+        self.body_point_forces = [(f.tolist(), bp) for bp, f in seg.body_point_forces
+                                  if np.any(f != 0.0)]
+        self.torque = seg.torque
         self.torque_list = self.torque.tolist() if np.any(self.torque != 0.0) else None
+        self.body_torque = seg.body_torque
         self.needs_rotation = bool(self.body_point_forces) or self.body_torque is not None
-        self.needs_pose = self.needs_rotation or has_com
+        self.needs_pose = self.needs_rotation or self.com_force is not None
 
 
 class PybulletAdapter(Adapter):
     name: ClassVar[str] = "pybullet"
     import_name: ClassVar[str] = "pybullet"
-    install_hint: ClassVar[str] = "pip install pybullet"
     integrators: ClassVar[tuple[str, ...]] = ("multibody", "maximal")
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "(x, y, z, w), Hamilton, body -> world; converted to (w, x, y, z)",
@@ -151,11 +139,6 @@ class PybulletAdapter(Adapter):
 
     # --- building -----------------------------------------------------------------------------
     def build(self) -> None:
-        if self.integrator not in self.integrators:
-            raise ValueError(f"unknown pybullet integrator {self.integrator!r}; "
-                             f"offered: {', '.join(self.integrators)}")
-        if self.precision != "float64":
-            raise self.unsupported(f"precision {self.precision!r}")
         self._maximal = self.integrator == "maximal"
         self._cid = -1
         cid = pybullet.connect(pybullet.DIRECT)
@@ -270,14 +253,18 @@ class PybulletAdapter(Adapter):
         # The initial state: pose first (resetBasePositionAndOrientation zeroes velocities).
         self._write_pose(x0, q0)
         pb.resetBaseVelocity(b, v0.tolist(), w0.tolist(), physicsClientId=cid)
-        x, q, v, w = self.read_state()
+        x, q = self._read_pose()
+        v, w = (np.array(a) for a in pb.getBaseVelocity(b, physicsClientId=cid))
         scale = 1.0 + max(np.max(np.abs(x0)), np.max(np.abs(v0)), np.max(np.abs(w0)))
         err = max(np.max(np.abs(x - x0)), np.max(np.abs(v - v0)), np.max(np.abs(w - w0)))
         if err > _INITIAL_STATE_TOL * scale or geodesic_angle(q, q0) > _INITIAL_STATE_TOL:
             raise RuntimeError(f"pybullet initial state read back {x}, {q}, {v}, {w}; "
                                f"set {x0}, {q0}, {v0}, {w0}")
 
-        self._setup_loads()
+        # V^T: principal frame -> body frame, to turn PyBullet's inertial-frame matrix into R_body.
+        self._Vt = matrix_from_quat(self._q_V).T
+        self._engine_loads = {seg.k0: _EngineLoads(seg) for seg in self.loads.segments
+                              if seg.active}
 
     def _probe(self, x0: np.ndarray, q0: np.ndarray, g: np.ndarray) -> None:
         """One step of a fast spin about a principal axis: proves damping 0 and no clamp.
@@ -321,98 +308,61 @@ class PybulletAdapter(Adapter):
         return quat_multiply(quat_wxyz_from_xyzw(q_inertial_xyzw), self._q_V_inv)
 
     # --- loads ----------------------------------------------------------------------------------
-    def _setup_loads(self) -> None:
-        """Step indices where the active set of loads changes, for a cached plan per interval."""
-        bounds = {0}
-        for ld in self.problem.loads:
-            for k in ld.step_range(self.dt):
-                if np.isfinite(k):
-                    bounds.add(int(k))
-        self._load_bounds = sorted(bounds)
-        self._load_plans: dict[int, _LoadPlan | None] = {}
-        # V^T: principal frame -> body frame, to turn PyBullet's inertial-frame matrix into R_body.
-        self._Vt = matrix_from_quat(self._q_V).T
-
-    def _plan(self, k: int) -> _LoadPlan | None:
-        """The loads acting on step k, pre-grouped (cached per interval between switches)."""
-        i = bisect.bisect_right(self._load_bounds, k) - 1
-        if i in self._load_plans:
-            return self._load_plans[i]
-        loads = self.problem.active_loads(k, self.dt)
-        plan = _LoadPlan(loads) if loads else None
-        self._load_plans[i] = plan
-        return plan
-
-    def apply_loads(self, k: int) -> None:
-        """applyExternalForce at world points and applyExternalTorque (world couple), WORLD_FRAME.
+    def _apply_loads(self, loads: _EngineLoads) -> None:
+        """applyExternalForce at world points and applyExternalTorque (world couple), WORLD_FRAME,
+        for the next step.
 
         A force at a fixed world point goes to the engine as is (the engine forms the torque
-        (point - COM) x f); a force at a body point goes at x + R body_point and a force at the
-        COM at x, with x and R the pose at the start of the step (read from the engine now).
-        Couples: torque + R body_torque.
+        (point - COM) x f); a force at a body point goes at x + R body_point and the sum of the
+        forces at the COM at x, with x and R the pose at the start of the step (read from the
+        engine now).  Couples: torque + R body_torque.
         """
-        if not self.problem.loads:
-            return
-        plan = self._plan(k)
-        if plan is None:
-            return
         pb, cid, b, world = pybullet, self._cid, self._body, pybullet.WORLD_FRAME
         force = pb.applyExternalForce
-        if plan.needs_pose:
+        if loads.needs_pose:
             x, orn = pb.getBasePositionAndOrientation(b, physicsClientId=cid)
-            if plan.needs_rotation:
+            if loads.needs_rotation:
                 # R_body = R_inertial V^T (R_inertial from PyBullet's own xyzw conversion).
                 R = np.reshape(pb.getMatrixFromQuaternion(orn), (3, 3)) @ self._Vt
                 xa = np.array(x)
-                for f, bp in plan.body_point_forces:
+                for f, bp in loads.body_point_forces:
                     force(b, -1, f, (xa + R @ bp).tolist(), world, physicsClientId=cid)
-            if plan.com_force is not None:
-                force(b, -1, plan.com_force, x, world, physicsClientId=cid)
-        for f, p in plan.world_point_forces:
+            if loads.com_force is not None:
+                force(b, -1, loads.com_force, x, world, physicsClientId=cid)
+        for f, p in loads.world_point_forces:
             force(b, -1, f, p, world, physicsClientId=cid)
-        if plan.body_torque is not None:
-            tau = (plan.torque + R @ plan.body_torque).tolist()
+        if loads.body_torque is not None:
+            tau = (loads.torque + R @ loads.body_torque).tolist()
         else:
-            tau = plan.torque_list
+            tau = loads.torque_list
         if tau is not None:
             pb.applyExternalTorque(b, -1, tau, world, physicsClientId=cid)
 
-    # --- stepping and reading -----------------------------------------------------------------
-    def step(self) -> None:
-        pybullet.stepSimulation(physicsClientId=self._cid)
+    # --- stepping -------------------------------------------------------------------------------
+    def advance(self, steps: int) -> Trajectory:
+        """Step by step with the schedule's loads, shaped for speed.
 
-    def read_state(self):
-        """(COM position (3,) m world, quaternion (4,) wxyz body -> world, COM velocity (3,) m/s
-        world, angular velocity (3,) rad/s world)."""
-        pb, cid, b = pybullet, self._cid, self._body
-        pos, orn = pb.getBasePositionAndOrientation(b, physicsClientId=cid)
-        v, w = pb.getBaseVelocity(b, physicsClientId=cid)
-        return np.array(pos), self._body_quat(orn), np.array(v), np.array(w)
-
-    def simulate(self, steps: int) -> Trajectory:
-        """As Adapter.simulate, shaped for speed (the same engine calls, the same Trajectory).
-
-        Shaped for speed because PyBullet's step is only ~3.5 us: the engine's tuples are appended
-        to ONE flat list of floats (13 per sample: position, inertial-frame quaternion xyzw,
-        velocity, angular velocity) and converted by one np.array at the end; four lists of
-        tuples converted by np.array cost ~1.5 us per step, the flat list ~0.2.  Steps on which
-        no load is active (apply_loads would do nothing) skip apply_loads; loaded steps call it as
-        the base loop does.  PyBullet reports no instability of its own, so nothing raises
-        EngineDiverged here.
+        PyBullet's step is only ~3.5 us: the engine's tuples are appended to ONE flat list of
+        floats (13 per sample: position, inertial-frame quaternion xyzw, velocity, angular
+        velocity) and converted by one np.array at the end; four lists of tuples converted by
+        np.array cost ~1.5 us per step, the flat list ~0.2.  Stretches of steps on which no load
+        acts skip the loads altogether.  PyBullet reports no instability of its own, so nothing
+        raises EngineDiverged here.
         """
         pb, cid, b = pybullet, self._cid, self._body
         step, get_pose, get_vel = pb.stepSimulation, pb.getBasePositionAndOrientation, pb.getBaseVelocity
-        apply = self.apply_loads
+        apply = self._apply_loads
         k0 = self.k
         F: list[float] = []  # (steps + 1) x 13 floats, see above
         extend = F.extend
         pos, orn = get_pose(b, physicsClientId=cid)
         v, w = get_vel(b, physicsClientId=cid)
         extend(pos), extend(orn), extend(v), extend(w)
-        for ka, kb, loaded in self._intervals(k0, k0 + steps):
-            if loaded:
-                for k in range(ka, kb):
-                    apply(k)
+        for seg, ka, kb in self.loads.stretches(k0, k0 + steps):
+            if seg.active:
+                loads = self._engine_loads[seg.k0]
+                for _ in range(ka, kb):
+                    apply(loads)
                     step(physicsClientId=cid)
                     pos, orn = get_pose(b, physicsClientId=cid)
                     v, w = get_vel(b, physicsClientId=cid)
@@ -431,16 +381,21 @@ class PybulletAdapter(Adapter):
                           linear_velocity=np.ascontiguousarray(A[:, 7:10]),
                           angular_velocity=np.ascontiguousarray(A[:, 10:13]))
 
-    def _intervals(self, k_start: int, k_end: int):
-        """(ka, kb, loaded): the steps k_start <= k < k_end cut where the active set of loads
-        changes; loaded says whether any load acts on ka <= k < kb."""
-        bounds = self._load_bounds
-        ka = k_start
-        while ka < k_end:
-            i = bisect.bisect_right(bounds, ka)
-            kb = min(bounds[i], k_end) if i < len(bounds) else k_end
-            yield ka, kb, self._plan(ka) is not None
-            ka = kb
+    def bare_loop(self, steps: int) -> Callable[[], object]:
+        """stepSimulation + getBasePositionAndOrientation + getBaseVelocity (kept in lists),
+        ``steps`` times on this adapter's client and body (``freebody bench``)."""
+        cid, body = self._cid, self._body
+
+        def loop():
+            step, pose, vel = (pybullet.stepSimulation, pybullet.getBasePositionAndOrientation,
+                               pybullet.getBaseVelocity)
+            P, V = [pose(body, physicsClientId=cid)], [vel(body, physicsClientId=cid)]
+            for _ in range(steps):
+                step(physicsClientId=cid)
+                P.append(pose(body, physicsClientId=cid))
+                V.append(vel(body, physicsClientId=cid))
+            return P, V
+        return loop
 
     def close(self) -> None:
         cid = getattr(self, "_cid", -1)

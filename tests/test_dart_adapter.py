@@ -11,8 +11,8 @@ import pytest
 
 pytest.importorskip("dartpy", reason="dartpy not installed (pip install 'freebody[engines]')")
 
-from freebody.adapters.base import Adapter, EngineDiverged, load_adapter  # noqa: E402
-from freebody.adapters.dart_adapter import DartAdapter  # noqa: E402
+from freebody.adapters.base import EngineDiverged, load_adapter  # noqa: E402
+from freebody.adapters.dart_adapter import _WORLD, DartAdapter  # noqa: E402
 from freebody.reference_impl.conventions import (angular_momentum,  # noqa: E402
                                                   angular_velocity_body_from_world)
 from freebody.reference_impl.integrators import simulate as reference_simulate  # noqa: E402
@@ -30,7 +30,7 @@ READBACK_TOL = 1e-12
 # amplifies; measured 3.4e-9 rad (orientation) and 5e-9 rad/s at 10 s (dartpy 6.20).
 DZHANIBEKOV_ANGLE_TOL = 1e-7  # rad
 DZHANIBEKOV_OMEGA_TOL = 1e-7  # rad/s
-# Short, non-chaotic runs (gravity, loads, step-by-step vs fast loop): round-off only;
+# Short, non-chaotic runs (gravity, loads, frame conversions): round-off only;
 # measured <= 1e-13 over 200 steps at dt = 0.01.
 ROUNDOFF_TOL = 1e-11
 # 150 rad/s about a principal axis, 200 steps at dt = 1e-3: the map is exact for a principal-axis
@@ -70,22 +70,27 @@ def test_registry_loads_the_adapter():
     assert DartAdapter.engine_version().startswith(("6.", "7."))
 
 
-def test_initial_state_reads_back_exactly():
+def test_joint_coordinates_convert_to_dart_frames():
+    """advance() converts the raw FreeJoint coordinates ([log R; x], [w; v] in the frame probed
+    by _coordinate_frames) into what DART's frame-explicit getters say, at t = 0 (the state set
+    in build) and after a step; the full inertia tensor went in undiagonalised."""
     pb = problem()
     adapter = DartAdapter(pb, 0.01, INTEGRATOR)
-    x, q, v, w = adapter.read_state()
-    assert np.abs(x - X0).max() < READBACK_TOL
-    assert geodesic_angle(q, Q0) < READBACK_TOL
-    assert np.abs(v - V0).max() < READBACK_TOL
-    assert np.abs(w - W0).max() < READBACK_TOL
-    # the fast loop's own conversion of the joint coordinates agrees at t = 0
-    tr = adapter.simulate(0)
-    assert len(tr) == 1
+    body = adapter.body
+    dart_t0 = (body.getWorldTransform(), body.getCOMLinearVelocity(_WORLD, _WORLD),
+               body.getAngularVelocity(_WORLD, _WORLD))
+    tr = adapter.simulate(1)
+    dart_t1 = (body.getWorldTransform(), body.getCOMLinearVelocity(_WORLD, _WORLD),
+               body.getAngularVelocity(_WORLD, _WORLD))
+    for i, (T, v, w) in enumerate((dart_t0, dart_t1)):
+        assert np.abs(tr.position[i] - T.translation()).max() < READBACK_TOL
+        assert np.abs(matrix_from_quat(tr.quaternion_wxyz[i]) - T.rotation()).max() < READBACK_TOL
+        assert np.abs(tr.linear_velocity[i] - v).max() < READBACK_TOL
+        assert np.abs(tr.angular_velocity[i] - w).max() < READBACK_TOL
     assert np.abs(tr.position[0] - X0).max() < READBACK_TOL
     assert geodesic_angle(tr.quaternion_wxyz[0], Q0) < READBACK_TOL
     assert np.abs(tr.linear_velocity[0] - V0).max() < READBACK_TOL
     assert np.abs(tr.angular_velocity[0] - W0).max() < READBACK_TOL
-    # the full inertia tensor went in undiagonalised
     assert np.abs(adapter.body.getInertia().getMoment() - I_FULL).max() < READBACK_TOL
 
 
@@ -99,11 +104,6 @@ def test_settings_recorded_and_in_effect():
     assert adapter.world.getTimeStep() == 0.004
     assert adapter.world.getDeactivationOptions().mEnabled is False
     np.testing.assert_array_equal(adapter.world.getGravity(), [0.5, -1.0, -3.0])
-
-
-def test_unknown_integrator_is_refused():
-    with pytest.raises(ValueError):
-        DartAdapter(problem(), 0.01, "rk4")
 
 
 @pytest.mark.parametrize("I, q", [(np.diag([1.0, 2.0, 3.0]), (1.0, 0.0, 0.0, 0.0)),
@@ -158,7 +158,7 @@ def test_push_at_offset_point_gives_its_torque(where):
     np.testing.assert_allclose(tr.linear_velocity[1] - V0, h * f / 2.5, rtol=0, atol=ROUNDOFF_TOL)
 
 
-def test_all_load_kinds_match_reference_and_step_api():
+def test_all_load_kinds_match_reference():
     loads = [Load(force=np.array([1.0, 2.0, -3.0]), point=np.array([1.5, -1.8, 3.4]), steps=30),
              Load(force=np.array([-2.0, 0.5, 1.0]), body_point=np.array([0.2, 0.1, -0.3]),
                   start=0.1, end=0.25),
@@ -171,23 +171,19 @@ def test_all_load_kinds_match_reference_and_step_api():
     assert np.abs(tr.angular_velocity - ref.angular_velocity).max() < ROUNDOFF_TOL
     assert np.abs(tr.position - ref.position).max() < ROUNDOFF_TOL
     assert np.abs(tr.linear_velocity - ref.linear_velocity).max() < ROUNDOFF_TOL
-    # the generic apply_loads / step / read_state loop gives the same trajectory
-    slow = Adapter.simulate(DartAdapter(pb, 0.01, INTEGRATOR), pb.steps(0.01))
-    assert geodesic_angle(tr.quaternion_wxyz, slow.quaternion_wxyz).max() < ROUNDOFF_TOL
-    assert np.abs(tr.angular_velocity - slow.angular_velocity).max() < ROUNDOFF_TOL
-    assert np.abs(tr.linear_velocity - slow.linear_velocity).max() < ROUNDOFF_TOL
 
 
 def test_external_forces_clear_after_each_step():
+    """DART clears external forces after every World.step (the adapter re-applies them before
+    each step): after the loaded step none is left, and the motion afterwards is force-free."""
     load = Load(force=np.array([4.0, 0.0, 1.0]), body_point=np.array([0.0, 0.3, 0.0]),
                 torque=np.array([0.0, 0.5, 0.0]), steps=1)
     pb = problem(loads=[load], gravity=(0, 0, 0))
     adapter = DartAdapter(pb, 0.01, INTEGRATOR)
-    adapter.apply_loads(0)
-    assert np.abs(adapter.body.getExternalForceGlobal()).max() > 1.0
-    adapter.step()
+    tr = adapter.simulate(1)
+    np.testing.assert_allclose(tr.linear_velocity[1] - V0, 0.01 * load.force / 2.5, rtol=0,
+                               atol=ROUNDOFF_TOL)  # the load acted
     np.testing.assert_array_equal(adapter.body.getExternalForceGlobal(), np.zeros(6))
-    # and the motion afterwards is torque- and force-free (the reference applies one step only)
     adapter2, tr, ref = run(pb, 0.01, steps=20)
     assert np.abs(tr.linear_velocity[1:] - tr.linear_velocity[1]).max() < ROUNDOFF_TOL
     assert np.abs(tr.angular_velocity - ref.angular_velocity).max() < ROUNDOFF_TOL
@@ -244,16 +240,32 @@ def test_blow_up_raises_and_keeps_the_terminal_quiet(capfd):
     assert capfd.readouterr().err == "still here\n"
 
 
-def test_blow_up_through_the_step_api(capfd):
+def test_advancing_past_the_blow_up_raises_again_quietly(capfd):
+    """After EngineDiverged the adapter stands at the bad sample (self.k); advancing on from there
+    (DART keeps printing its warnings) raises again at the next step, times counted from k."""
     pb = problem(**BLOWUP)
     adapter = DartAdapter(pb, 0.01, INTEGRATOR)
     with pytest.raises(EngineDiverged) as info:
-        Adapter.simulate(adapter, pb.steps(0.01))
-    assert "non-finite" in info.value.reason.lower()
+        adapter.simulate(pb.steps(0.01))
+    k = adapter.k
+    assert k == len(info.value.trajectory) - 1
+    with pytest.raises(EngineDiverged) as again:
+        adapter.advance(3)
+    assert "non-finite" in again.value.reason.lower()
+    assert again.value.t == pytest.approx((k + 1) * 0.01) and adapter.k == k + 1
+    np.testing.assert_array_equal(again.value.trajectory.t, np.array([k, k + 1]) * 0.01)
     assert capfd.readouterr().err == ""
-    # stepping on past the blow-up: DART's warnings are captured and reported, not printed
-    adapter.step()
-    adapter.step()
-    assert adapter.instability() is not None
-    assert capfd.readouterr().err == ""
-    adapter.close()
+
+
+def test_bare_loop_steps_the_adapters_world():
+    """bare_loop (freebody bench): World.step and the raw joint coordinates on the adapter's
+    world, the coordinates advance() records for a load-free body."""
+    pb = problem()
+    P, V = DartAdapter(pb, 0.01, INTEGRATOR).bare_loop(5)()
+    adapter = DartAdapter(pb, 0.01, INTEGRATOR)
+    tr = adapter.simulate(5)
+    assert P.shape == V.shape == (6, 6)
+    np.testing.assert_array_equal(P[:, 3:], tr.position)
+    if adapter._frames == "world":  # DART 6.20: velocity coordinates are [w; v] world
+        np.testing.assert_array_equal(V[:, :3], tr.angular_velocity)
+        np.testing.assert_array_equal(V[:, 3:], tr.linear_velocity)
