@@ -1,21 +1,41 @@
-"""Shared fixtures: engines as parameters, a missing engine as a visible skip with its reason."""
-from __future__ import annotations
+"""Shared fixtures: engines as parameters, from the registry (``freebody.adapters.base``), a missing
+engine as a visible skip with its install hint as the reason, the expensive engines marked slow.
 
-import importlib.util
+A test that takes an argument ``engine`` runs on every registered engine, one taking
+``physics_engine`` on every engine but the reference maps.  Modules that parametrise on engines
+themselves build their parameters with :func:`engine_param` (``from conftest import ...``).
+"""
+from __future__ import annotations
 
 import pytest
 
-from freebody.adapters.base import ENGINES, install_hint
+from freebody.adapters.base import REFERENCE_ENGINE, engine_names, install_hint, is_available
+
+# Engines whose every run is expensive: mjx JIT-compiles each integrator and precision (tens of
+# seconds on 2 cores).  Their parameters carry the ``slow`` mark (``pytest -m "not slow"`` leaves
+# them out), and tests that run many cases or bodies per engine leave them out (FAST_ENGINES).
+SLOW_ENGINES = frozenset({"mjx"})
 
 
-def _requires(engine: str):
-    import_name = ENGINES[engine][0]
-    missing = importlib.util.find_spec(import_name) is None
-    return pytest.mark.skipif(missing, reason=f"{engine} not installed ({install_hint(engine)})")
+def engine_marks(engine: str) -> list:
+    """The marks of a test parameter for this engine: skipped with its install hint when it is not
+    installed; ``slow`` when it is one of SLOW_ENGINES."""
+    marks = [pytest.mark.skipif(not is_available(engine),
+                                reason=f"{engine} not installed ({install_hint(engine)})")]
+    if engine in SLOW_ENGINES:
+        marks.append(pytest.mark.slow)
+    return marks
 
 
-ALL_ENGINES = [pytest.param(name, marks=_requires(name), id=name) for name in ENGINES]
-PHYSICS_ENGINES = [p for p in ALL_ENGINES if p.values[0] != "reference"]
+def engine_param(engine: str, *values, id: str | None = None):
+    """``pytest.param(engine, *values)`` with the engine's marks (see :func:`engine_marks`)."""
+    return pytest.param(engine, *values, marks=engine_marks(engine), id=id or engine)
+
+
+ALL_ENGINES = [engine_param(name) for name in engine_names()]
+PHYSICS_ENGINES = [p for p in ALL_ENGINES if p.values[0] != REFERENCE_ENGINE]
+# Every registered engine but the slow ones (names; installed or not: a missing one is a skipped run)
+FAST_ENGINES = [name for name in engine_names() if name not in SLOW_ENGINES]
 
 
 def pytest_generate_tests(metafunc):

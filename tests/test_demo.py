@@ -2,11 +2,11 @@
 that say what the page claims.  Short horizons keep the whole file fast."""
 from __future__ import annotations
 
-import importlib.util
-
 import numpy as np
 import pytest
 
+from conftest import FAST_ENGINES, engine_param
+from freebody.adapters.base import REFERENCE_ENGINE
 from freebody.casefile import load_case
 from freebody.cli import main
 from freebody.demo import demo_dzhanibekov, demo_integrators, demo_quiz, quiz_closed_form
@@ -17,10 +17,8 @@ QUIZ_EXACT_ANGLE_RAD = 1e-7  # truth vs -7.5 h^2: the world-point arm tilts as t
 QUIZ_ENGINE_MATCH_M = 1e-9  # an engine's semi-implicit map vs the reference's after two steps
 ORDER_SLACK = 0.35  # fitted slopes on 3 coarse steps: pre-asymptotic by a few tenths at most
 
-CLASSIC_ENGINES = [pytest.param(e, marks=pytest.mark.skipif(importlib.util.find_spec(m) is None,
-                                                            reason=f"{e} not installed (pip install 'freebody[engines]')"),
-                                id=e)
-                   for e, m in (("mujoco", "mujoco"), ("pybullet", "pybullet"), ("dart", "dartpy"))]
+# Every registered physics engine but the slow ones (mjx compiles for tens of seconds per run).
+CLASSIC_ENGINES = [engine_param(e) for e in FAST_ENGINES if e != REFERENCE_ENGINE]
 
 
 def _assert_written(res):

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import FAST_ENGINES
 from fake_engines.crashing_adapter import REGISTRY_ENTRY
 from freebody.adapters.base import ENGINES, is_available
 from freebody.casefile import load_case
@@ -25,8 +26,9 @@ from freebody.suite import run_specs
 
 # Keys of a run that measure time, not physics: the only ones allowed to differ between executors.
 TIMING_KEYS = ("wall_time_s", "compile_time_s")
-# The physics engines compared serial vs parallel (mjx is left out: it spends ~10 s per run compiling).
-ENGINES_COMPARED = ["reference", "mujoco", "pybullet", "dart"]
+# The engines compared serial vs parallel: every registered engine but the slow ones (mjx spends
+# ~10 s per run compiling); a missing one is a skipped run on both sides.
+ENGINES_COMPARED = FAST_ENGINES
 TIMEOUT_S = 1.0  # per-run limit of the hang test: far below crashing_adapter.SLEEP_S
 HANG_TEST_BUDGET_S = 30.0  # the hang test must finish well before the sleeping run would
 

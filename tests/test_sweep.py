@@ -1,24 +1,20 @@
 """freebody sweep: valid random bodies, determinism by seed, worst cases that reproduce their runs."""
 from __future__ import annotations
 
-import importlib.util
 import tomllib
 import warnings
 
 import numpy as np
 import pytest
 
+from conftest import FAST_ENGINES, engine_param
 from freebody.casefile import bundled_case_paths, load_case, parse_case
 from freebody.cli import main
 from freebody.runner import RunSpec, TruthCache, execute
 from freebody.sweep import SweepSettings, dump_case, load_sweep, random_bodies, sweep
 
-# The classic engines; mjx is left out here: its JIT compile takes about a minute per body shape.
-SWEEP_ENGINES = [pytest.param(e, marks=pytest.mark.skipif(importlib.util.find_spec(m) is None,
-                                                          reason=f"{e} not installed (pip install 'freebody[engines]')"),
-                              id=e)
-                 for e, m in (("reference", "numpy"), ("mujoco", "mujoco"), ("pybullet", "pybullet"),
-                              ("dart", "dartpy"))]
+# Every registered engine but the slow ones (mjx: its JIT compile takes about a minute per body shape).
+SWEEP_ENGINES = [engine_param(e) for e in FAST_ENGINES]
 SMALL = SweepSettings(seed=7, count=3, duration=0.1, dts=(0.01,))
 TRIANGLE_RTOL = 1e-12  # the principal moments of I_body, recomputed by eigvalsh, to round-off
 UNIT_QUATERNION_ATOL = 1e-15  # |q| - 1 of a quaternion normalised once

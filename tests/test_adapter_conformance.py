@@ -1,0 +1,477 @@
+"""Adapter conformance: every registered engine, through the one adapter contract of
+``freebody.adapters.base``, on every integrator and precision it offers.
+
+The engines, integrators and precisions come from the registry (``engine_names()``) and the
+adapter classes (``offered_integrators()``, ``precisions``): a new engine runs through this module
+without being named here.  A missing engine is a visible skip with its install hint; a broken one
+fails.  Expensive engines carry the ``slow`` mark (``pytest -m "not slow"`` skips them).
+
+Checked, in the canonical convention (``reference_impl/conventions.py``; q and -q compare equal):
+
+- t = 0 read-back on a rotated, offset, moving body with a full inertia tensor;
+- one-step pushes (force at a world point, at a body point, world couple, body couple): the change
+  of L and p is the impulse of the load;
+- a blow-up run through the harness is ``diverged`` with the trajectory up to it;
+- ``settings`` entries are {"default", "set"}, JSON-serialisable, and recorded in the run's result;
+- offered precisions build, an unoffered precision or integrator raises ``UnsupportedOption``;
+- chunked stepping (``simulate(n, chunk_steps=c)``, several ``advance`` calls) equals one-shot
+  stepping bit for bit, across load switches;
+- ``advance`` moves ``k`` by ``steps`` and returns steps + 1 samples at t = (k0 + i) dt;
+- batched stepping (engines with ``supports_batch()``) equals one-shot stepping bit for bit;
+- ``bare_loop`` is None or a callable that runs; capabilities are well formed.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+from typing import NamedTuple
+
+import numpy as np
+import pytest
+
+from conftest import engine_marks
+from freebody.adapters.base import (REFERENCE_ENGINE, Adapter, BatchRun, EngineMissing,
+                                    UnsupportedOption, engine_names, install_hint, is_available,
+                                    load_adapter, registry)
+from freebody.adapters.capture import capture_output
+from freebody.reference_impl.conventions import Trajectory, angular_momentum, linear_momentum
+from freebody.reference_impl.problem import Body, InitialState, Load, Problem
+from freebody.reference_impl.rotations import matrix_from_quat, quat_from_rotvec
+from freebody.runner import PRECISIONS, RunSpec, execute
+
+# --- tolerances ---------------------------------------------------------------------------------
+# t = 0 read-back: the state just written, through the engine's own conversions (quaternion order,
+# body-frame w and back): round-off of a few operations on values of order 1 (measured <= 9e-16)...
+READBACK_ATOL = {"float64": 1e-12,
+                 # ...and float32 storage (eps 1.2e-7) of values up to ~3 (measured 5e-8 for mjx).
+                 "float32": 1e-6}
+# One push of h = 1e-3 from angular rest, loose: L changes by h tau up to O(h |w+|) (the body turns
+# during the step) and, for a force at a fixed world point on a map that evaluates loads within
+# the step (RK4 stages), O(h |v| / |r - x|) = 2e-3 as the COM moves under the arm (measured 7e-4,
+# reference rk4; <= 6e-7 elsewhere); float32 adds eps32 |p0| / |h f| (measured 5e-6).  A wrong
+# arm, frame or sign is an O(1) error.
+PUSH_RTOL = 1e-2
+# Divergence times are sample times t_k = k dt: compared with the trajectory's own t to this slack
+# (s; the round-off of k dt).
+SAMPLE_TIME_ATOL = 1e-12
+
+# --- the problems ---------------------------------------------------------------------------------
+PUSH_DT = 1e-3  # s: one step of the push tests
+DT = 0.01  # s: the other tests' step (the switching loads below are placed on its grid)
+ADVANCE_STEPS = (5, 1, 8)  # consecutive advance() calls
+CHUNKED_STEPS = 90  # one run: loads switch at steps 3, 5, 8, 12, 17, then a 73-step free stretch
+CHUNK_SIZES = (1, 7, 32, CHUNKED_STEPS - 1, CHUNKED_STEPS + 3)  # 1, odd sizes, one piece
+SPLIT_AT = (17, 40)  # simulate() called three times: steps 0-17, 17-57, 57-90
+BATCH_STEPS = 30
+F_PUSH = np.array([0.0, 3.0, -2.0])  # N, world
+TAU_PUSH = np.array([0.8, -1.5, 0.6])  # N m (world or body frame)
+ARM_BODY = np.array([0.5, 0.2, -0.3])  # m, body frame: where the pushes act
+# A huge spin near the intermediate axis of I = diag(1, 2, 3), h |w| = 5: explicit gyroscopic
+# terms blow up within 2 s (measured: MuJoCo Euler and RK4, every MJX integrator, PyBullet
+# multibody, DART, reference euler-matrix and semi-implicit-explicit-gyro); maps that keep L or
+# damp the spin stay bounded (a skip, after checking the run is finite).
+BLOWUP_W = (0.1, 50.0, 0.0)  # rad/s, world
+BLOWUP_DT = 0.1  # s
+BLOWUP_DURATION = 5.0  # s
+
+
+def _full_inertia_body(mass: float = 1.7, moments=(0.9, 1.6, 2.1), frame=(0.3, 0.2, -0.5)) -> Body:
+    """A body whose inertia tensor is full (principal axes not the body axes)."""
+    Q = matrix_from_quat(quat_from_rotvec(np.array(frame)))
+    return Body(mass, Q.T @ np.diag(moments) @ Q)
+
+
+def _general_initial(w=(0.7, -1.1, 2.3), v=(0.3, -0.4, 1.2), x=(1.5, -2.0, 0.75),
+                     rot=(0.4, -0.7, 0.25)) -> InitialState:
+    """Rotated, offset, moving and spinning."""
+    return InitialState(position=x, quaternion_wxyz=quat_from_rotvec(np.array(rot)),
+                        linear_velocity=v, angular_velocity=w)
+
+
+def general_problem(loads=(), gravity=(0.0, 0.0, -9.81), steps=1, **initial) -> Problem:
+    return Problem("conformance", "", _full_inertia_body(), _general_initial(**initial), gravity,
+                   tuple(loads), duration_steps=steps, dts=(DT,))
+
+
+# Loads switching on and off during CHUNKED_STEPS steps of DT (steps 3..11, 5..11, 8..16, all off
+# from 17): a body-point force, a world-point force, a world and a body couple.
+SWITCHING_LOADS = (
+    Load(force=[0.5, -1.0, 2.0], body_point=[0.1, 0.2, -0.3], start=0.03, end=0.12),
+    Load(force=[1.0, 0.3, -0.2], point=[2.0, -1.5, 0.9], start=0.05, steps=7),
+    Load(torque=[0.05, 0.0, -0.1], body_torque=[0.1, -0.2, 0.3], start=0.08, end=0.17),
+)
+
+
+def switching_problem() -> Problem:
+    return general_problem(SWITCHING_LOADS, steps=CHUNKED_STEPS)
+
+
+def batch_problems() -> list[Problem]:
+    """Bodies of one structure that differ in every number: mass, inertia, state, gravity, loads."""
+    return [
+        switching_problem(),
+        Problem("batch-1", "", _full_inertia_body(0.6, (1.0, 2.0, 2.5), (-0.4, 0.1, 0.9)),
+                _general_initial(w=(3.0, 0.2, -1.0), v=(0.0, 1.0, 0.0), x=(0.0, 0.0, 0.0),
+                                 rot=(1.2, 0.3, -0.2)),
+                (0.0, 0.0, 0.0), (Load(torque=[0.2, 0.1, 0.0], start=0.05, steps=4),),
+                duration_steps=BATCH_STEPS),
+        Problem("batch-2", "", Body(2.5, np.diag([1.0, 2.0, 3.0])),
+                _general_initial(w=(0.01, 5.0, 0.0), rot=(0.0, 0.0, 0.0)), (0.0, -1.0, 0.0),
+                duration_steps=BATCH_STEPS),
+    ]
+
+
+def blowup_problem() -> Problem:
+    return Problem("conformance-blowup", "", Body(1.0, np.diag([1.0, 2.0, 3.0])),
+                   InitialState([0, 0, 0], [1, 0, 0, 0], [0, 0, 0], BLOWUP_W), [0, 0, 0],
+                   duration=BLOWUP_DURATION, dts=(BLOWUP_DT,))
+
+
+# --- engines, integrators, precisions from the registry ------------------------------------------
+
+class Offer(NamedTuple):
+    """One (engine, integrator, precision) the engine offers; integrator None when the adapter
+    could not be loaded at collection (the test then loads it: a skip or the real error)."""
+
+    engine: str
+    integrator: str | None
+    precision: str | None
+
+
+def _try_load(engine: str):
+    """The adapter class, or None when the engine is missing or its adapter does not import."""
+    if not is_available(engine):
+        return None
+    try:
+        with capture_output():  # some engines print on import
+            return load_adapter(engine)
+    except Exception:  # reported by the test itself (adapter_class): skip or failure
+        return None
+
+
+def _collect_offers() -> list:
+    """One parameter per (engine, offered integrator, offered precision); engine-level tests take
+    the ``engine`` argument, parametrised by conftest over the registry."""
+    offers = []
+    for name in engine_names():
+        marks = engine_marks(name)
+        cls = _try_load(name)
+        if cls is None:
+            offers.append(pytest.param(Offer(name, None, None), marks=marks, id=name))
+            continue
+        try:
+            integrators, precisions = cls.offered_integrators(), tuple(cls.precisions)
+        except Exception:
+            integrators, precisions = (None,), (None,)
+        for integ in integrators:
+            for prec in precisions:
+                offers.append(pytest.param(Offer(name, integ, prec), marks=marks,
+                                           id=f"{name}-{integ}-{prec}"))
+    return offers
+
+
+OFFER_PARAMS = _collect_offers()
+
+
+def adapter_class(engine: str) -> type[Adapter]:
+    """The engine's adapter class; a missing engine skips with its install hint, a broken adapter
+    raises its real error (a failure, never a skip)."""
+    if not is_available(engine):
+        pytest.skip(f"{engine} not installed ({install_hint(engine)})")
+    try:
+        with capture_output():
+            return load_adapter(engine)
+    except EngineMissing as e:
+        pytest.skip(str(e))
+
+
+def _offer_class(offer: Offer) -> type[Adapter]:
+    cls = adapter_class(offer.engine)
+    if offer.integrator is None:
+        pytest.fail(f"{offer.engine}: the adapter loaded now but not at collection, or its "
+                    f"offered_integrators()/precisions failed")
+    return cls
+
+
+@contextlib.contextmanager
+def built(offer: Offer, problem: Problem, dt: float):
+    """An adapter for the offer, closed afterwards."""
+    cls = _offer_class(offer)
+    adapter = cls(problem, dt, offer.integrator, offer.precision)
+    try:
+        yield adapter
+    finally:
+        adapter.close()
+
+
+def run(offer: Offer, problem: Problem, dt: float, steps: int, chunk_steps: int | None = None) -> Trajectory:
+    with built(offer, problem, dt) as a:
+        return a.simulate(steps, chunk_steps)
+
+
+# --- helpers --------------------------------------------------------------------------------------
+
+FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity",
+          "orthonormality_error")
+
+
+def assert_identical(a: Trajectory, b: Trajectory, what: str) -> None:
+    """Every array of two trajectories equal bit for bit (np.array_equal)."""
+    assert len(a) == len(b), f"{what}: {len(a)} vs {len(b)} samples"
+    for f in FIELDS:
+        x, y = getattr(a, f), getattr(b, f)
+        if x is None or y is None:
+            assert x is None and y is None, f"{what}: {f} present in one trajectory only"
+            continue
+        if not np.array_equal(x, y):
+            bad = np.flatnonzero(np.any((x != y).reshape(len(x), -1), axis=1))
+            diff = float(np.max(np.abs(x - y)))
+            pytest.fail(f"{what}: {f} differs from sample {bad[0]} on ({len(bad)} samples, "
+                        f"max |diff| {diff:.3g})")
+
+
+def quat_distance(q: np.ndarray, r: np.ndarray) -> float:
+    """max |q - r| with q and -q equal."""
+    return float(min(np.max(np.abs(q - r)), np.max(np.abs(q + r))))
+
+
+def assert_valid_samples(tr: Trajectory, steps: int, k0: int, dt: float) -> None:
+    assert len(tr) == steps + 1, f"{len(tr)} samples for {steps} steps"
+    assert np.array_equal(tr.t, (k0 + np.arange(steps + 1)) * dt), (tr.t[:3], k0, dt)
+    for f, shape in (("position", 3), ("quaternion_wxyz", 4), ("linear_velocity", 3),
+                     ("angular_velocity", 3)):
+        a = getattr(tr, f)
+        assert a.shape == (steps + 1, shape) and a.dtype == np.float64, (f, a.shape, a.dtype)
+
+
+# --- capabilities -----------------------------------------------------------------------------------
+
+def test_capabilities_are_well_formed(engine):
+    cls = adapter_class(engine)
+    assert cls.name == engine
+    assert cls.import_name == registry()[engine].import_name
+    offered = cls.offered_integrators()
+    assert offered and set(offered) <= set(cls.integrators), (offered, cls.integrators)
+    assert len(set(offered)) == len(offered)
+    assert set(cls.selfcheck_integrators()) <= set(offered)
+    assert cls.precisions and set(cls.precisions) <= set(PRECISIONS), cls.precisions
+    assert isinstance(cls.engine_version(), str) and cls.engine_version()
+    assert all(isinstance(k, str) and isinstance(v, str) for k, v in cls.conventions.items())
+    assert cls.compare_with is None or cls.compare_with in registry()
+    # optional: only the reference engine's runs ARE freebody's reference maps
+    assert getattr(cls, "reference_maps", engine == REFERENCE_ENGINE) == (engine == REFERENCE_ENGINE)
+    assert isinstance(cls.supports_batch(), bool)
+    with cls.output_capture() as captured:
+        pass
+    assert isinstance(captured.lines, list) and captured.total >= 0
+
+
+# --- t = 0 read-back --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("offer", OFFER_PARAMS)
+def test_state_read_back_at_t0_is_the_initial_state(offer):
+    pb = general_problem()
+    tr = run(offer, pb, DT, 1)
+    init, tol = pb.initial, READBACK_ATOL[offer.precision]
+    assert tr.t[0] == 0.0
+    errors = {
+        "position": float(np.max(np.abs(tr.position[0] - init.position))),
+        "quaternion (q or -q)": quat_distance(tr.quaternion_wxyz[0], init.quaternion_wxyz),
+        "linear velocity": float(np.max(np.abs(tr.linear_velocity[0] - init.linear_velocity))),
+        "angular velocity": float(np.max(np.abs(tr.angular_velocity[0] - init.angular_velocity))),
+    }
+    bad = {k: v for k, v in errors.items() if not v <= tol}
+    assert not bad, f"read back at t = 0 vs the case (tol {tol:g}): {bad}"
+
+
+# --- pushes: impulse of one step ----------------------------------------------------------------------
+
+PUSHES = ("force at a world point", "force at a body point", "world couple", "body couple")
+
+
+def _push_problem(kind: str) -> tuple[Problem, np.ndarray, np.ndarray]:
+    """(problem, expected change of p (3,) N s, expected change of L (3,) N m s) over one step."""
+    init = _general_initial(w=(0.0, 0.0, 0.0))  # angular rest: no gyroscopic change of L
+    R0 = matrix_from_quat(init.quaternion_wxyz)
+    h, zero = PUSH_DT, np.zeros(3)
+    if kind == "force at a world point":
+        load = Load(force=F_PUSH, point=init.position + R0 @ ARM_BODY, start=0.0, steps=1)
+        dp, dL = h * F_PUSH, h * np.cross(R0 @ ARM_BODY, F_PUSH)  # h (r - x) x f
+    elif kind == "force at a body point":
+        load = Load(force=F_PUSH, body_point=ARM_BODY, start=0.0, steps=1)
+        dp, dL = h * F_PUSH, h * np.cross(R0 @ ARM_BODY, F_PUSH)
+    elif kind == "world couple":
+        load = Load(torque=TAU_PUSH, start=0.0, steps=1)
+        dp, dL = zero, h * TAU_PUSH
+    else:
+        load = Load(body_torque=TAU_PUSH, start=0.0, steps=1)
+        dp, dL = zero, h * R0 @ TAU_PUSH
+    pb = Problem("conformance-push", "", _full_inertia_body(), init, (0.0, 0.0, 0.0), (load,),
+                 duration_steps=1, dts=(h,))
+    return pb, dp, dL
+
+
+@pytest.mark.parametrize("kind", PUSHES)
+@pytest.mark.parametrize("offer", OFFER_PARAMS)
+def test_one_step_push_changes_momenta_by_its_impulse(offer, kind):
+    pb, dp_expected, dL_expected = _push_problem(kind)
+    tr = run(offer, pb, PUSH_DT, 1)
+    M, I_b = pb.body.mass, pb.body.I_body
+    L = angular_momentum(I_b, tr.quaternion_wxyz, tr.angular_velocity)
+    p = linear_momentum(M, tr.linear_velocity)
+    dL, dp = L[1] - L[0], p[1] - p[0]
+    scale_L = float(np.linalg.norm(dL_expected))
+    err_L = float(np.linalg.norm(dL - dL_expected)) / scale_L
+    # p: relative to h |f| (a couple must leave p alone to the same bound)
+    scale_p = PUSH_DT * float(np.linalg.norm(F_PUSH))
+    err_p = float(np.linalg.norm(dp - dp_expected)) / scale_p
+    assert err_L <= PUSH_RTOL, f"|dL - dL_expected| / |dL_expected| = {err_L:.2e} (dL {dL}, expected {dL_expected})"
+    assert err_p <= PUSH_RTOL, f"|dp - dp_expected| / (h |f|) = {err_p:.2e} (dp {dp}, expected {dp_expected})"
+
+
+# --- blow-up through the harness -----------------------------------------------------------------
+
+@pytest.mark.parametrize("offer", OFFER_PARAMS)
+def test_blow_up_is_diverged_with_the_trajectory_up_to_it(offer):
+    _offer_class(offer)
+    pb = blowup_problem()
+    out = execute(RunSpec(pb, offer.engine, offer.integrator, BLOWUP_DT, pb.steps(BLOWUP_DT),
+                          offer.precision))
+    r, tr = out.result, out.trajectory
+    assert r.status in ("ok", "diverged"), (r.status, r.message)
+    assert tr is not None and len(tr) >= 1
+    finite = np.all([np.all(np.isfinite(getattr(tr, f)), axis=-1) for f in FIELDS[1:5]], axis=0)
+    if r.status == "ok":
+        # stayed bounded: the harness missed nothing non-finite, and this map cannot blow up here
+        assert finite.all(), "a run with non-finite samples was judged ok"
+        assert r.diverged_at_s is None
+        pytest.skip(f"{offer.engine} {offer.integrator} ({offer.precision}) keeps a spin of "
+                    f"{np.linalg.norm(BLOWUP_W):g} rad/s at dt = {BLOWUP_DT} bounded: no blow-up "
+                    f"to detect")
+    t_div = r.diverged_at_s
+    assert t_div is not None and 0.0 < t_div <= BLOWUP_DURATION + SAMPLE_TIME_ATOL, r
+    assert f"{t_div:.6g}" in r.message, r.message
+    assert tr.t[0] == 0.0 and np.allclose(np.diff(tr.t), BLOWUP_DT, rtol=0, atol=SAMPLE_TIME_ATOL)
+    assert tr.t[-1] >= t_div - SAMPLE_TIME_ATOL, "the trajectory stops before the divergence"
+    before = tr.t < t_div - SAMPLE_TIME_ATOL
+    assert before.sum() >= 1
+    assert finite[before].all(), "non-finite samples before the divergence"
+    # no metric past the blow-up; the ones kept before it are finite numbers or None
+    assert r.metrics["orientation_error_max_rad"] is None
+    assert r.final_state is None
+    json.dumps(r.to_json(), allow_nan=False)
+
+
+# --- settings -----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("offer", OFFER_PARAMS)
+def test_settings_are_recorded_and_serialisable(offer):
+    pb = general_problem(SWITCHING_LOADS, gravity=(0.5, -1.0, -3.0), steps=3)
+    with built(offer, pb, DT) as a:
+        settings = a.settings
+    assert isinstance(settings, dict)
+    for key, entry in settings.items():
+        assert isinstance(key, str)
+        assert isinstance(entry, dict) and set(entry) == {"default", "set"}, (key, entry)
+    text = json.dumps(settings, allow_nan=False)  # raises on numpy types, NaN, inf
+    result = execute(RunSpec(pb, offer.engine, offer.integrator, DT, 3, offer.precision)).result
+    assert result.status == "ok", result.message
+    assert json.loads(json.dumps(result.engine_settings, allow_nan=False)) == json.loads(text)
+
+
+# --- precision and integrator offers ------------------------------------------------------------------
+
+def test_offered_precisions_build_and_others_are_refused(engine):
+    cls = adapter_class(engine)
+    pb = general_problem()
+    integrator = cls.offered_integrators()[0]
+    for precision in cls.precisions:
+        cls(pb, DT, integrator, precision).close()
+    for precision in [p for p in PRECISIONS if p not in cls.precisions] + ["float16"]:
+        with pytest.raises(UnsupportedOption):
+            cls(pb, DT, integrator, precision)
+    for bad in ("no-such-integrator", ""):
+        with pytest.raises(UnsupportedOption):
+            cls(pb, DT, bad, cls.precisions[0])
+    not_offered = [i for i in cls.integrators if i not in cls.offered_integrators()]
+    for bad in not_offered:  # declared but not in the installed version
+        with pytest.raises(UnsupportedOption):
+            cls(pb, DT, bad, cls.precisions[0])
+
+
+# --- chunked stepping -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("offer", OFFER_PARAMS)
+def test_chunked_stepping_equals_one_shot_bit_for_bit(offer):
+    pb = switching_problem()
+    whole = run(offer, pb, DT, CHUNKED_STEPS)
+    assert_valid_samples(whole, CHUNKED_STEPS, 0, DT)
+    for c in CHUNK_SIZES:
+        assert_identical(run(offer, pb, DT, CHUNKED_STEPS, chunk_steps=c), whole,
+                         f"simulate({CHUNKED_STEPS}, chunk_steps={c}) vs simulate({CHUNKED_STEPS})")
+    # the pieces chunks() delivers: consecutive, each sample once
+    with built(offer, pb, DT) as a:
+        pieces = list(a.chunks(CHUNKED_STEPS, 7))
+    assert [len(p) for p in pieces] == [8] + [7] * 11 + [6]
+    assert_identical(Trajectory.concatenate(pieces), whole, "chunks(n, 7) concatenated")
+    # a run continued by further simulate() calls
+    with built(offer, pb, DT) as a:
+        parts, k = [], 0
+        for stop in (*np.cumsum(SPLIT_AT), CHUNKED_STEPS):
+            tr = a.simulate(int(stop) - k)
+            parts.append(tr if k == 0 else tr.tail(1))
+            k = int(stop)
+    assert_identical(Trajectory.concatenate(parts), whole, f"simulate() split at {SPLIT_AT}")
+
+
+# --- advance --------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("offer", OFFER_PARAMS)
+def test_advance_moves_k_and_returns_the_samples_from_k(offer):
+    pb = switching_problem()
+    with built(offer, pb, DT) as a:
+        assert a.k == 0
+        assert a.dt == DT and a.integrator == offer.integrator and a.precision == offer.precision
+        previous = None
+        for steps in ADVANCE_STEPS:
+            k0 = a.k
+            tr = a.advance(steps)
+            assert a.k == k0 + steps
+            assert_valid_samples(tr, steps, k0, DT)
+            if previous is not None:  # the current state first: the last sample handed out
+                assert_identical(tr.head(1), previous.tail(len(previous) - 1), "advance's first sample")
+            previous = tr
+        assert a.compile_time_s is None or a.compile_time_s >= 0.0
+
+
+# --- batched stepping -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("offer", OFFER_PARAMS)
+def test_batched_stepping_equals_one_shot_bit_for_bit(offer):
+    cls = _offer_class(offer)
+    if not cls.supports_batch():
+        pytest.skip(f"{offer.engine} does not step bodies as a batch")
+    problems = batch_problems()
+    batch = cls.simulate_batch(problems, DT, BATCH_STEPS, offer.integrator, offer.precision)
+    assert isinstance(batch, BatchRun)
+    assert len(batch.trajectories) == len(problems)
+    assert batch.diverged_at_s == [None] * len(problems)
+    assert batch.compile_time_s >= 0.0 and batch.step_time_s >= 0.0
+    assert batch.engine_settings == [] or len(batch.engine_settings) == len(problems)
+    for i, (pb, tr) in enumerate(zip(problems, batch.trajectories)):
+        assert_identical(tr, run(offer, pb, DT, BATCH_STEPS), f"batch body {i} vs its run alone")
+    for i, st in enumerate(batch.engine_settings):
+        with built(offer, problems[i], DT) as a:
+            assert json.loads(json.dumps(st, allow_nan=False)) == json.loads(json.dumps(a.settings))
+
+
+# --- bare loop ----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("offer", OFFER_PARAMS)
+def test_bare_loop_is_none_or_runs(offer):
+    with built(offer, general_problem(), DT) as a:
+        loop = a.bare_loop(10)
+        if loop is None:
+            return
+        assert callable(loop)
+        loop()

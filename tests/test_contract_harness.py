@@ -1,0 +1,112 @@
+"""The harness against the adapter contract, with a fake engine that declares batching
+(``tests/fake_engines/batching_adapter.py``, registered as ``batcher``): ``freebody sweep`` steps
+the bodies of such an engine as one batch per (integrator, precision, dt, steps), through the
+adapter class's ``simulate_batch``, and the results are those of each body run alone.  The fake
+engine itself passes the conformance checks of ``test_adapter_conformance.py``."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import test_adapter_conformance as conformance
+from fake_engines.batching_adapter import INTEGRATOR, REGISTRY_ENTRY, BatchingAdapter
+from freebody.adapters import base
+from freebody.runner import execute, expand
+from freebody.sweep import SweepSettings, _batched_outputs, random_bodies, run_bodies, sweep
+
+BODIES = SweepSettings(seed=5, count=4, duration=0.2, dts=(0.01,))
+# Keys of a run that measure time, not physics: the only ones a batched run may change.
+TIMING_KEYS = ("wall_time_s", "compile_time_s")
+# Keys run_bodies() leaves out of its runs.
+DROPPED_KEYS = ("engine_settings", "trajectory")
+
+
+@pytest.fixture
+def batcher(monkeypatch):
+    monkeypatch.syspath_prepend(str(Path(__file__).parent))
+    monkeypatch.setitem(base.ENGINES, "batcher", REGISTRY_ENTRY)
+    BatchingAdapter.batch_calls.clear()
+    yield "batcher"
+    BatchingAdapter.batch_calls.clear()
+
+
+def test_the_fake_engine_is_registered_and_declares_batching(batcher):
+    assert batcher in base.engine_names() and base.is_available(batcher)
+    assert base.load_adapter(batcher) is BatchingAdapter
+    assert BatchingAdapter.supports_batch()
+
+
+def test_sweep_batches_a_batching_engine_once_per_group(batcher):
+    bodies = random_bodies(BODIES)
+    specs = expand([b.problem for b in bodies], [batcher], None, None, None)
+    assert len(specs) == len(bodies) and len({s.steps for s in specs}) == 1
+    outputs = _batched_outputs(specs, progress=False)
+    assert [c["bodies"] for c in BatchingAdapter.batch_calls] == [len(bodies)], \
+        BatchingAdapter.batch_calls
+    call = BatchingAdapter.batch_calls[0]
+    assert (call["dt"], call["steps"], call["integrator"], call["precision"]) == \
+        (specs[0].dt, specs[0].steps, INTEGRATOR, "float64")
+    assert set(outputs) == {id(s) for s in specs}, "some runs were not batched"
+    for spec in specs:
+        sim, compare_with = outputs[id(spec)]
+        alone = BatchingAdapter(spec.problem, spec.dt, spec.integrator, spec.precision)
+        conformance.assert_identical(sim.trajectory, alone.simulate(spec.steps),
+                                     f"{spec.problem.name}: batched vs alone")
+        assert sim.diverged_at is None and compare_with is None
+        assert sim.settings == alone.settings
+
+
+def test_run_bodies_results_equal_each_body_run_alone(batcher):
+    bodies = random_bodies(BODIES)
+    runs = run_bodies(bodies, [batcher], progress=False)
+    assert len(BatchingAdapter.batch_calls) == 1
+    BatchingAdapter.batch_calls.clear()
+    specs = expand([b.problem for b in bodies], [batcher], None, None, None)
+    assert len(runs) == len(specs)
+    def physics(run: dict) -> dict:
+        return {k: v for k, v in run.items() if k not in TIMING_KEYS + DROPPED_KEYS}
+
+    for spec, got in zip(specs, runs):
+        assert got["status"] == "ok", got["message"]
+        assert physics(got) == physics(execute(spec).result.to_json())
+    assert BatchingAdapter.batch_calls == []  # execute() runs one body at a time
+
+
+def test_a_sweep_with_batching_and_non_batching_engines(batcher, tmp_path):
+    """Only the batching engine's runs are batched; the other engine's run one by one."""
+    outcome = sweep(BODIES, ["reference", batcher], integrators=["semi-implicit-explicit-gyro",
+                                                                f"{batcher}:{INTEGRATOR}"],
+                    out_dir=tmp_path, progress=False)
+    assert len(BatchingAdapter.batch_calls) == 1
+    runs = outcome.document["runs"]
+    assert {r["engine"] for r in runs} == {"reference", batcher}
+    assert all(r["status"] == "ok" for r in runs), [r["message"] for r in runs]
+
+
+@pytest.mark.parametrize("check", [
+    conformance.test_state_read_back_at_t0_is_the_initial_state,
+    conformance.test_settings_are_recorded_and_serialisable,
+    conformance.test_chunked_stepping_equals_one_shot_bit_for_bit,
+    conformance.test_advance_moves_k_and_returns_the_samples_from_k,
+    conformance.test_batched_stepping_equals_one_shot_bit_for_bit,
+    conformance.test_bare_loop_is_none_or_runs,
+], ids=lambda f: f.__name__.removeprefix("test_"))
+def test_the_fake_engine_passes_the_conformance_checks(batcher, check):
+    check(conformance.Offer(batcher, INTEGRATOR, "float64"))
+
+
+@pytest.mark.parametrize("kind", conformance.PUSHES)
+def test_the_fake_engine_passes_the_push_checks(batcher, kind):
+    conformance.test_one_step_push_changes_momenta_by_its_impulse(
+        conformance.Offer(batcher, INTEGRATOR, "float64"), kind)
+
+
+def test_the_fake_engine_blows_up_as_diverged(batcher):
+    conformance.test_blow_up_is_diverged_with_the_trajectory_up_to_it(
+        conformance.Offer(batcher, INTEGRATOR, "float64"))
+
+
+def test_the_fake_engine_passes_the_engine_level_checks(batcher):
+    conformance.test_capabilities_are_well_formed(batcher)
+    conformance.test_offered_precisions_build_and_others_are_refused(batcher)
