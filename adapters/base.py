@@ -179,7 +179,8 @@ class Adapter(ABC):
     def simulate_batch(cls, problems: list[Problem], dt: float, steps: int, integrator: str,
                        precision: str = "float64") -> BatchRun:
         """Step many problems of one integrator, precision, dt and horizon together; each body's
-        trajectory equals what :meth:`simulate` gives for it alone."""
+        trajectory equals what :meth:`simulate` gives for it alone, to round-off (a vectorised
+        kernel may order its floating-point operations differently)."""
         raise NotImplementedError(f"{cls.name} does not step bodies as a batch")
 
     def record_setting(self, key: str, default, value) -> None:

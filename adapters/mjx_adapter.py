@@ -12,23 +12,27 @@ MuJoCo's, converted the same way:
   written as ``R^T w_world`` by the MuJoCo adapter, read back as ``R w_body``.
 - Loads: ``xfrc_applied[1]`` (6,) = [force (3,) N world, torque (3,) N m world about the COM],
   rewritten before every step inside the scan (see below), exactly the wrench the MuJoCo adapter
-  writes (same load segments, arms from the state at the start of the step).
+  writes (same load schedule, arms from the state at the start of the step).
 
-Stepping.  A run is ``jax.lax.scan`` of ``mjx.step`` under ``jax.jit`` over chunks of
-``CHUNK_STEPS`` steps (the last one padded with load-free steps whose samples are dropped), so a
-run of N steps costs ceil(N / CHUNK_STEPS) calls from Python and one compilation per (model
-structure, integrator, precision) and process: the model is an argument of the compiled function
-(not a constant), so bodies of different mass and inertia share it.  The compiled executables are
-kept in a module-level cache; ``compile_time_s`` on the adapter is the time this run spent tracing
-and compiling (0 when the cache had it), ``step_time_s`` the time spent stepping.  Set the JAX
-option ``JAX_COMPILATION_CACHE_DIR`` to keep compilations across processes.
+Stepping.  ``advance(n)`` is ``jax.lax.scan`` of ``mjx.step`` under ``jax.jit`` over chunks of
+``CHUNK_STEPS`` steps, so n steps cost ceil(n / CHUNK_STEPS) calls from Python and one
+compilation per (model structure, integrator, precision) and process: the model is an argument of
+the compiled function (not a constant), so bodies of different mass and inertia share it.  A chunk
+of fewer real steps (the last one, or every one when the harness delivers a run in pieces) is
+padded to ``CHUNK_STEPS`` with steps that leave the Data as it is (``lax.cond`` on the step
+index), so the Data carried on is that of the last real step and a run cut into pieces of any
+size is the one-piece run bit for bit.  The compiled executables are kept in a module-level
+cache; ``compile_time_s`` on the adapter is the time this run spent tracing and compiling (0 when
+the cache had it), ``step_time_s`` the time spent stepping.  Set the JAX option
+``JAX_COMPILATION_CACHE_DIR`` to keep compilations across processes.
 
-Per-step loads are a (steps, _ROW) float array computed before the run from the case's load
-segments (the MuJoCo adapter's ``_segments``); inside the scan the state-dependent parts use the
-current ``qpos``:  world torque = const + (c - x) x F_point + axial(R M) + R tau_body, where ``c``
-is the first world-point load's point (the other world-point loads' (p_i - c) x f_i are folded
-into const), F_point the sum of world-point forces, M = sum of body_point (x) force (3, 3) (so
-axial(R M) = sum (R b_i) x f_i) and tau_body the body-frame couples.
+Per-step loads are a (steps, _ROW) float array computed before each chunk from the run's
+:class:`~freebody.adapters.loads.LoadSchedule` (``self.loads``); inside the scan the
+state-dependent parts use the current ``qpos``:  world torque = const + (c - x) x F_point +
+axial(R M) + R tau_body, where ``c`` is the first world-point load's point (the other world-point
+loads' (p_i - c) x f_i are folded into const), F_point the sum of world-point forces, M = sum of
+body_point (x) force (3, 3) (so axial(R M) = sum (R b_i) x f_i) and tau_body the body-frame
+couples.
 
 Precision.  ``float64`` or ``float32`` (JAX's default).  Everything a run does (put_model,
 put_data, tracing, compiling, stepping) runs inside JAX's thread-local ``jax.enable_x64(on)``
@@ -50,9 +54,14 @@ C MuJoCo 4.0's fourth order).
 ``implicit`` is rejected by ``put_model`` and ``discrete`` by ``mjx.step``.
 
 Instability: MJX has no warnings counter (C MuJoCo's "Nan, Inf or huge value" checks) and no
-auto-reset: a blow-up grows until the state is non-finite, and ``simulate`` returns it as
-computed; the harness detects it (non-finite values, and its bounds on a huge but finite state).
-``instability()`` is always None.
+auto-reset: a blow-up grows until the state is non-finite, and ``advance`` returns it as
+computed (never raising :class:`~freebody.adapters.base.EngineDiverged`); the harness detects it
+(non-finite values, and its bounds on a huge but finite state).
+
+Batches.  ``MjxAdapter.supports_batch()`` is True: :meth:`MjxAdapter.simulate_batch` steps many
+bodies as one ``jax.vmap``-ped scan (``freebody sweep`` uses it).  A body's trajectory is its
+single run's up to round-off, not bit for bit: the vmapped step is compiled as another XLA
+computation (a few ulp per step, then grown by the dynamics like any perturbation).
 
 Engine defaults changed (recorded, read back): the MuJoCo adapter's (timestep, gravity,
 integrator, alignfree, and the C auto-reset flag, which MJX ignores), and ``jax_enable_x64``
@@ -66,7 +75,6 @@ import importlib.metadata
 import importlib.util
 import io
 import time
-from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -84,8 +92,9 @@ import mujoco  # noqa: E402
 
 from ..reference_impl.conventions import Trajectory  # noqa: E402
 from ..reference_impl.problem import Problem  # noqa: E402
-from .base import Adapter  # noqa: E402
-from .mujoco_adapter import MujocoAdapter, _segments, _trajectory  # noqa: E402
+from .base import Adapter, BatchRun, UnsupportedOption  # noqa: E402
+from .loads import LoadSchedule  # noqa: E402
+from .mujoco_adapter import MujocoAdapter, _trajectory  # noqa: E402
 
 # freebody's integrator name (MuJoCo's spelling) -> mjx.IntegratorType member, default first:
 # the ones mjx.step implements (IntegratorType also has DISCRETE, which mjx.step rejects).
@@ -169,17 +178,19 @@ def _loaded_step(m, d, row):
     return mjx.step(m, d.replace(xfrc_applied=xfrc))
 
 
-def _chunk(m, d, rows):
-    """Scan _loaded_step over rows (C, _ROW): (final Data, qpos (C, 7), qvel (C, 6))."""
-    def body(dd, row):
-        dd = _loaded_step(m, dd, row)
+def _chunk(m, d, rows, n):
+    """Scan _loaded_step over the first n of rows (C, _ROW); the C - n steps after them leave the
+    Data as it is.  Returns (Data after step n, qpos (C, 7), qvel (C, 6)): rows n.. repeat the
+    state of step n."""
+    def body(dd, x):
+        i, row = x
+        dd = jax.lax.cond(i < n, lambda e: _loaded_step(m, e, row), lambda e: e, dd)
         return dd, (dd.qpos, dd.qvel)
-    d, (Q, V) = jax.lax.scan(body, d, rows)
+    d, (Q, V) = jax.lax.scan(body, d, (jnp.arange(rows.shape[-2]), rows))
     return d, Q, V
 
 
 _chunk_jit = jax.jit(_chunk)
-_step_jit = jax.jit(_loaded_step)
 
 
 def _compiled(kind: str, fn, precision: str, args, extra=()):
@@ -214,12 +225,8 @@ def _check(what: str, got, want) -> None:
 def _build(problem: Problem, dt: float, integrator: str, precision: str, x64_default: bool):
     """(mjx.Model, mjx.Data, settings) for a problem, inside the caller's x64 scope: the MuJoCo
     adapter's C model and data moved to JAX, settings read back from the mjx.Model.
-    x64_default: jax_enable_x64 outside the scope."""
-    if integrator not in MjxAdapter.offered_integrators():
-        raise ValueError(f"mjx {MjxAdapter.engine_version()} has no integrator {integrator!r}; "
-                         f"offered: {', '.join(MjxAdapter.offered_integrators())}")
-    if precision not in PRECISIONS:
-        raise ValueError(f"mjx offers the precisions {PRECISIONS}, not {precision!r}")
+    x64_default: jax_enable_x64 outside the scope.  The integrator and precision are already
+    checked (by Adapter.__init__, or simulate_batch)."""
     c = MujocoAdapter(problem, dt, integrator, "float64")
     try:
         settings = dict(c.settings)
@@ -239,13 +246,10 @@ def _build(problem: Problem, dt: float, integrator: str, precision: str, x64_def
     return mx, dx, settings
 
 
-def _load_rows(problem: Problem, dt: float, k0: int, k1: int, dtype) -> np.ndarray:
+def _load_rows(loads: LoadSchedule, k0: int, k1: int, dtype) -> np.ndarray:
     """Per-step load rows (k1 - k0, _ROW) for the steps k0 <= k < k1 (see _ROW)."""
     rows = np.zeros((k1 - k0, _ROW))
-    for seg in _segments(problem, dt):
-        a, b = max(seg.k0, k0), min(seg.k1, k1)
-        if a >= b:
-            continue
+    for seg, a, b in loads.stretches(k0, k1):
         row = np.zeros(_ROW)
         row[0:6] = seg.constant
         if seg.point_forces:
@@ -260,7 +264,7 @@ def _load_rows(problem: Problem, dt: float, k0: int, k1: int, dtype) -> np.ndarr
         row[12:21] = M.ravel()
         if seg.body_torque is not None:
             row[21:24] = seg.body_torque
-        rows[int(a) - k0:int(b) - k0] = row
+        rows[a - k0:b - k0] = row
     return rows.astype(dtype)
 
 
@@ -273,7 +277,6 @@ def _first_bad(Q: np.ndarray, V: np.ndarray) -> int | None:
 class MjxAdapter(Adapter):
     name: ClassVar[str] = "mjx"
     import_name: ClassVar[str] = "jax"
-    install_hint: ClassVar[str] = "pip install 'freebody[jax]'"
     integrators: ClassVar[tuple[str, ...]] = tuple(_INTEGRATOR_ENUM)
     precisions: ClassVar[tuple[str, ...]] = PRECISIONS
     compare_with: ClassVar[str | None] = "mujoco"
@@ -308,42 +311,23 @@ class MjxAdapter(Adapter):
     def offered_integrators(cls) -> tuple[str, ...]:
         return tuple(n for n, e in _INTEGRATOR_ENUM.items() if hasattr(mjx.IntegratorType, e))
 
+    @classmethod
+    def supports_batch(cls) -> bool:
+        return True
+
     # --- world ---------------------------------------------------------------------------------
     def build(self) -> None:
-        self._dtype = _DTYPE.get(self.precision)
+        self._dtype = _DTYPE[self.precision]
         x64_default = _current_x64()
         with _x64(self.precision == "float64"):
             self._m, self._d, settings = _build(self.problem, self.dt, self.integrator,
                                                 self.precision, x64_default)
         self.settings.update(settings)
-        self._row = np.zeros(_ROW, dtype=self._dtype)  # the next step's loads (step-by-step use)
         self.compile_time_s = 0.0  # tracing + compiling spent by this adapter, s
         self.step_time_s = 0.0     # stepping, s (excludes compiling)
 
-    # --- step-by-step use (the harness uses simulate) ----------------------------------------------
-    def apply_loads(self, k: int) -> None:
-        self._row = _load_rows(self.problem, self.dt, k, k + 1, self._dtype)[0]
-
-    def step(self) -> None:
-        with _x64(self.precision == "float64"):
-            row = jnp.asarray(self._row)
-            fn, spent = _compiled("step", _step_jit, self.precision, (self._m, self._d, row))
-            self.compile_time_s += spent
-            t0 = time.perf_counter()
-            self._d = fn(self._m, self._d, row)
-            self._d.qpos.block_until_ready()
-            self.step_time_s += time.perf_counter() - t0
-        self._row = np.zeros(_ROW, dtype=self._dtype)
-
-    def read_state(self):
-        qpos = np.asarray(self._d.qpos, dtype=np.float64)
-        qvel = np.asarray(self._d.qvel, dtype=np.float64)
-        tr = _trajectory(qpos[None], qvel[None], self.dt)
-        return (tr.position[0], tr.quaternion_wxyz[0], tr.linear_velocity[0],
-                tr.angular_velocity[0])
-
-    # --- whole runs ------------------------------------------------------------------------------
-    def simulate(self, steps: int) -> Trajectory:
+    # --- stepping ------------------------------------------------------------------------------
+    def advance(self, steps: int) -> Trajectory:
         """``steps`` steps from the current state (t = (k0 + i) dt, k0 = self.k) as
         ceil(steps / CHUNK_STEPS) compiled scans.  MJX signals no instability: a blow-up comes
         back as computed (non-finite samples), for the harness to detect."""
@@ -358,52 +342,95 @@ class MjxAdapter(Adapter):
             while i < steps:
                 n = min(CHUNK_STEPS, steps - i)
                 rows = np.zeros((CHUNK_STEPS, _ROW), dtype=dtype)
-                rows[:n] = _load_rows(self.problem, self.dt, k0 + i, k0 + i + n, dtype)
-                rows_j = jnp.asarray(rows)
-                fn, spent = _compiled("chunk", _chunk_jit, self.precision, (m, d, rows_j))
+                rows[:n] = _load_rows(self.loads, k0 + i, k0 + i + n, dtype)
+                args = (m, d, jnp.asarray(rows), jnp.int32(n))
+                fn, spent = _compiled("chunk", _chunk_jit, self.precision, args)
                 self.compile_time_s += spent
                 t0 = time.perf_counter()
-                d_next, Qc, Vc = fn(m, d, rows_j)
+                d, Qc, Vc = fn(*args)  # d: the Data after the chunk's last real step
                 Qc, Vc = np.asarray(Qc), np.asarray(Vc)
                 self.step_time_s += time.perf_counter() - t0
                 if Qc.dtype != dtype:
                     raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {self.precision}")
                 Q[i + 1:i + 1 + n], V[i + 1:i + 1 + n] = Qc[:n], Vc[:n]
                 i += n
-                if n == CHUNK_STEPS:
-                    d = d_next
-                else:  # a padded chunk ends past the run: keep the state at its last real step
-                    d = d.replace(qpos=jnp.asarray(Qc[n - 1]), qvel=jnp.asarray(Vc[n - 1]),
-                                  time=d.time + n * d.time.dtype.type(self.dt))
         self._d = d
         self.k = k0 + steps
-        tr = _trajectory(Q, V, self.dt)
-        return replace(tr, t=(k0 + np.arange(steps + 1)) * self.dt)
+        return _trajectory(Q, V, self.dt, k0)
 
     def close(self) -> None:
         self._m = self._d = None
 
+    # --- batched runs --------------------------------------------------------------------------
+    @classmethod
+    def simulate_batch(cls, problems: list[Problem], dt: float, steps: int,
+                       integrator: str = "Euler", precision: str = "float64") -> BatchRun:
+        """Run many free bodies as one ``jax.vmap``-ped batch of MJX scans.
 
-# --- batched runs ---------------------------------------------------------------------------------
+        problems : Problems whose MJX models have the same structure (ValueError otherwise: MJX
+            keeps some facts of a model as static structure, e.g. whether the body frame is the
+            principal frame); mass, inertia, initial state, gravity and loads may differ.
+            dt : s, shared.  steps : number of steps, shared.
+        integrator, precision : as for :class:`MjxAdapter`.
+        Each body's trajectory is what :meth:`simulate` gives for it alone up to round-off (the
+        same step, vmapped: not bit for bit, see the module docstring).  A body that blows up does not stop the batch: its samples turn
+        non-finite and ``diverged_at_s`` says when.
+        """
+        if integrator not in cls.offered_integrators():  # (Adapter.__init__ checks single runs)
+            raise UnsupportedOption(f"{cls.name} {cls.engine_version()} has no integrator "
+                                    f"{integrator!r}; offered: {', '.join(cls.offered_integrators())}")
+        if precision not in cls.precisions:
+            raise UnsupportedOption(f"{cls.name} offers the precisions {', '.join(cls.precisions)}, "
+                                    f"not {precision!r}")
+        if not problems:
+            return BatchRun([], [], 0.0, 0.0, [])
+        dtype = _DTYPE[precision]
+        x64_default = _current_x64()
+        schedules = [LoadSchedule(pb, dt) for pb in problems]
+        with _x64(precision == "float64"):
+            built = [_build(pb, dt, integrator, precision, x64_default) for pb in problems]
+            m, m_axes = _stack_models([b[0] for b in built])
+            d = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[b[1] for b in built])
+            # the model's static structure (integrator, diagonal inertia, ...) and which leaves
+            # vary across the batch: a compiled batch fits only models that agree on both
+            axes_key = (jax.tree_util.tree_structure(m), tuple(
+                a is None for a in jax.tree_util.tree_leaves(m_axes, is_leaf=lambda x: x is None)))
+            fn_jit = _BATCH_JIT.get(axes_key)
+            if fn_jit is None:
+                fn_jit = _BATCH_JIT[axes_key] = jax.jit(
+                    jax.vmap(_chunk, in_axes=(m_axes, 0, 0, None)))
+            B = len(problems)
+            Q = np.empty((B, steps + 1, 7))
+            V = np.empty((B, steps + 1, 6))
+            Q[:, 0] = np.asarray(d.qpos, dtype=np.float64)
+            V[:, 0] = np.asarray(d.qvel, dtype=np.float64)
+            compile_s = step_s = 0.0
+            k = 0
+            while k < steps:
+                n = min(CHUNK_STEPS, steps - k)
+                rows = np.zeros((B, CHUNK_STEPS, _ROW), dtype=dtype)
+                for i, loads in enumerate(schedules):
+                    rows[i, :n] = _load_rows(loads, k, k + n, dtype)
+                args = (m, d, jnp.asarray(rows), jnp.int32(n))
+                fn, spent = _compiled("batch", fn_jit, precision, args, extra=axes_key)
+                compile_s += spent
+                t0 = time.perf_counter()
+                d, Qc, Vc = fn(*args)
+                Qc, Vc = np.asarray(Qc), np.asarray(Vc)
+                step_s += time.perf_counter() - t0
+                if Qc.dtype != dtype:
+                    raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {precision}")
+                Q[:, k + 1:k + 1 + n], V[:, k + 1:k + 1 + n] = Qc[:, :n], Vc[:, :n]
+                k += n
+        trajectories, diverged = [], []
+        for i in range(B):
+            bad = _first_bad(Q[i], V[i])
+            diverged.append(None if bad is None else bad * dt)
+            trajectories.append(_trajectory(Q[i], V[i], dt))
+        return BatchRun(trajectories, diverged, compile_s, step_s, [b[2] for b in built])
 
-@dataclass
-class BatchRun:
-    """Result of :func:`simulate_batch`.
 
-    trajectories : one canonical :class:`Trajectory` per problem (steps + 1 samples, float64;
-        NaN/inf after a body's blow-up are kept as computed).
-    diverged_at_s : per problem, the time of the first non-finite sample, or None.
-    compile_time_s : tracing + compiling, s (0.0 when the process had it compiled).
-    step_time_s : stepping the whole batch, s.
-    engine_settings : per problem, the engine defaults changed (as ``Adapter.settings``).
-    """
-
-    trajectories: list[Trajectory]
-    diverged_at_s: list[float | None]
-    compile_time_s: float
-    step_time_s: float
-    engine_settings: list[dict] = field(default_factory=list)
-
+# --- batched runs: helpers ------------------------------------------------------------------------
 
 def _stack_models(models):
     """(stacked model, in_axes tree): leaves equal across the batch stay unbatched (None)."""
@@ -426,59 +453,7 @@ def _stack_models(models):
     return jax.tree_util.tree_unflatten(treedef, out), jax.tree_util.tree_unflatten(treedef, axes)
 
 
-_BATCH_JIT: dict = {}
+_BATCH_JIT: dict = {}  # in-axes of the stacked model -> jit(vmap(_chunk))
 
-
-def simulate_batch(problems: list[Problem], dt: float, steps: int, integrator: str = "Euler",
-                   precision: str = "float64") -> BatchRun:
-    """Run many free bodies as one ``jax.vmap``-ped batch of MJX scans.
-
-    problems : Problems of the same structure (any mass, inertia, initial state, gravity and
-        loads; all single free bodies are).  dt : s, shared.  steps : number of steps, shared.
-    integrator, precision : as for :class:`MjxAdapter`.
-    Each body's trajectory is what :meth:`MjxAdapter.simulate` gives for it alone (the same
-    compiled step, vmapped).  A body that blows up does not stop the batch: its samples turn
-    non-finite and ``diverged_at_s`` says when.
-    """
-    if not problems:
-        return BatchRun([], [], 0.0, 0.0, [])
-    dtype = _DTYPE.get(precision)
-    x64_default = _current_x64()
-    with _x64(precision == "float64"):
-        built = [_build(pb, dt, integrator, precision, x64_default) for pb in problems]
-        m, m_axes = _stack_models([b[0] for b in built])
-        d = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[b[1] for b in built])
-        axes_key = tuple(a is None for a in jax.tree_util.tree_leaves(
-            m_axes, is_leaf=lambda x: x is None))
-        fn_jit = _BATCH_JIT.get(axes_key)
-        if fn_jit is None:
-            fn_jit = _BATCH_JIT[axes_key] = jax.jit(jax.vmap(_chunk, in_axes=(m_axes, 0, 0)))
-        B = len(problems)
-        Q = np.empty((B, steps + 1, 7))
-        V = np.empty((B, steps + 1, 6))
-        Q[:, 0] = np.asarray(d.qpos, dtype=np.float64)
-        V[:, 0] = np.asarray(d.qvel, dtype=np.float64)
-        compile_s = step_s = 0.0
-        k = 0
-        while k < steps:
-            n = min(CHUNK_STEPS, steps - k)
-            rows = np.zeros((B, CHUNK_STEPS, _ROW), dtype=dtype)
-            for i, pb in enumerate(problems):
-                rows[i, :n] = _load_rows(pb, dt, k, k + n, dtype)
-            rows_j = jnp.asarray(rows)
-            fn, spent = _compiled("batch", fn_jit, precision, (m, d, rows_j), extra=axes_key)
-            compile_s += spent
-            t0 = time.perf_counter()
-            d, Qc, Vc = fn(m, d, rows_j)
-            Qc, Vc = np.asarray(Qc), np.asarray(Vc)
-            step_s += time.perf_counter() - t0
-            if Qc.dtype != dtype:
-                raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {precision}")
-            Q[:, k + 1:k + 1 + n], V[:, k + 1:k + 1 + n] = Qc[:, :n], Vc[:, :n]
-            k += n
-    trajectories, diverged = [], []
-    for i in range(B):
-        bad = _first_bad(Q[i], V[i])
-        diverged.append(None if bad is None else bad * dt)
-        trajectories.append(_trajectory(Q[i], V[i], dt))
-    return BatchRun(trajectories, diverged, compile_s, step_s, [b[2] for b in built])
+# The function form of MjxAdapter.simulate_batch (docs/mjx.md); the harness asks the class.
+simulate_batch = MjxAdapter.simulate_batch

@@ -21,7 +21,6 @@ runs bit for bit: ``freebody run worst/<case>.toml --engine E --integrator I``.
 """
 from __future__ import annotations
 
-import importlib
 import json
 import math
 import platform
@@ -40,7 +39,8 @@ from .reference_impl.problem import Body, InitialState, Problem
 from .reference_impl.rotations import matrix_from_quat, quat_normalize
 from .reference_impl.truth import truth_kind
 from .results import write_json_atomic
-from .adapters.base import load_adapter
+from .adapters.base import is_available, load_adapter
+from .adapters.capture import capture_output
 from .runner import STATUSES, RunSpec, Simulated, TruthCache, execute, expand, finish
 from .summary import run_label
 
@@ -265,8 +265,8 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
                progress: bool = True, precisions: list[str] | None = None) -> list[dict]:
     """Run every body on every selected engine and integrator at the sweep's time steps.
 
-    Engines that can step many bodies at once (``mjx``: one ``jax.vmap``-ped batch per integrator,
-    precision, dt and horizon) do so; the others run body by body.  Every run is judged by
+    Engines whose adapter steps many bodies at once (``supports_batch()``; mjx: one ``jax.vmap``-ped
+    batch per integrator, precision, dt and horizon) do so; the others run body by body.  Every run is judged by
     :func:`freebody.runner.finish`, so a batched run's result is that of the same run alone.
     Returns the runs as results.json ``runs`` entries (in body, dt, engine, integrator order), without
     the per-run ``engine_settings`` (reproduce a run with ``freebody run`` to see them).
@@ -297,24 +297,41 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
     return runs
 
 
-BATCH_ENGINES = ("mjx",)  # engines whose adapter module offers simulate_batch(problems, dt, steps, ...)
+def _batch_classes(engines, progress: bool) -> dict[str, type]:
+    """engine -> its adapter class, for the installed engines whose adapter steps bodies as a
+    batch (``supports_batch()``).  An engine that is missing is left out, and so is one whose
+    adapter fails to load: its runs go one by one and record their own skip or failure."""
+    out = {}
+    for engine in dict.fromkeys(engines):
+        try:
+            if not is_available(engine):
+                continue
+            with capture_output():  # some engines print a banner on import (pybullet)
+                cls = load_adapter(engine)
+            if cls.supports_batch():
+                out[engine] = cls
+        except Exception as e:
+            if progress:
+                sys.stderr.write(f"freebody: warning: the {engine} adapter failed to load "
+                                 f"({type(e).__name__}: {e}); running its runs one by one\n")
+    return out
 
 
 def _batched_outputs(specs: list[RunSpec], progress: bool) -> dict[int, tuple[Simulated, str | None]]:
-    """Step the runs of batch-capable engines as one batch per (engine, integrator, precision, dt,
-    steps); id(spec) -> (its Simulated, the engine it ports).  A batch that cannot run leaves its
-    runs to ``execute``."""
+    """Step the runs of batch-capable engines (``supports_batch()``) as one batch per (engine,
+    integrator, precision, dt, steps) with the adapter class's ``simulate_batch``; id(spec) ->
+    (its Simulated, the engine it ports).  A batch that cannot run leaves its runs to ``execute``."""
+    classes = _batch_classes((s.engine for s in specs), progress)
     groups: dict[tuple, list[RunSpec]] = {}
     for s in specs:
-        if s.engine in BATCH_ENGINES and s.integrator != "*":
+        if s.engine in classes and s.integrator != "*":
             groups.setdefault((s.engine, s.integrator, s.precision, s.dt, s.steps), []).append(s)
     out: dict[int, tuple[Simulated, str | None]] = {}
     for (engine, integrator, precision, dt, steps), group in groups.items():
+        cls = classes[engine]
         try:
-            cls = load_adapter(engine)
-            module = importlib.import_module(cls.__module__)
             t0 = time.perf_counter()
-            batch = module.simulate_batch([s.problem for s in group], dt, steps, integrator, precision)
+            batch = cls.simulate_batch([s.problem for s in group], dt, steps, integrator, precision)
             wall = (time.perf_counter() - t0) / len(group)
         except Exception as e:  # the runs go one by one instead, and record their own failure
             if progress:

@@ -17,7 +17,7 @@ Checked, in the canonical convention (``reference_impl/conventions.py``; q and -
 - chunked stepping (``simulate(n, chunk_steps=c)``, several ``advance`` calls) equals one-shot
   stepping bit for bit, across load switches;
 - ``advance`` moves ``k`` by ``steps`` and returns steps + 1 samples at t = (k0 + i) dt;
-- batched stepping (engines with ``supports_batch()``) equals one-shot stepping bit for bit;
+- batched stepping (engines with ``supports_batch()``) equals one-shot stepping to round-off;
 - ``bare_loop`` is None or a callable that runs; capabilities are well formed.
 """
 from __future__ import annotations
@@ -63,6 +63,10 @@ CHUNKED_STEPS = 90  # one run: loads switch at steps 3, 5, 8, 12, 17, then a 73-
 CHUNK_SIZES = (1, 7, 32, CHUNKED_STEPS - 1, CHUNKED_STEPS + 3)  # 1, odd sizes, one piece
 SPLIT_AT = (17, 40)  # simulate() called three times: steps 0-17, 17-57, 57-90
 BATCH_STEPS = 30
+# Batched vs alone, BATCH_STEPS = 30 steps of non-chaotic motion at dt 0.01: a vectorised kernel
+# (jax.vmap in mjx) may order operations differently, so the two agree to round-off per step,
+# relative to each array's scale (measured ~1e-15 in float64, ~1e-7 in float32 for mjx).
+BATCH_ROUNDOFF = {"float64": 1e-12, "float32": 1e-4}
 F_PUSH = np.array([0.0, 3.0, -2.0])  # N, world
 TAU_PUSH = np.array([0.8, -1.5, 0.6])  # N m (world or body frame)
 ARM_BODY = np.array([0.5, 0.2, -0.3])  # m, body frame: where the pushes act
@@ -447,7 +451,7 @@ def test_advance_moves_k_and_returns_the_samples_from_k(offer):
 # --- batched stepping -----------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("offer", OFFER_PARAMS)
-def test_batched_stepping_equals_one_shot_bit_for_bit(offer):
+def test_batched_stepping_equals_one_shot_to_round_off(offer):
     cls = _offer_class(offer)
     if not cls.supports_batch():
         pytest.skip(f"{offer.engine} does not step bodies as a batch")
@@ -459,7 +463,18 @@ def test_batched_stepping_equals_one_shot_bit_for_bit(offer):
     assert batch.compile_time_s >= 0.0 and batch.step_time_s >= 0.0
     assert batch.engine_settings == [] or len(batch.engine_settings) == len(problems)
     for i, (pb, tr) in enumerate(zip(problems, batch.trajectories)):
-        assert_identical(tr, run(offer, pb, DT, BATCH_STEPS), f"batch body {i} vs its run alone")
+        alone = run(offer, pb, DT, BATCH_STEPS)
+        assert len(tr) == len(alone), f"batch body {i}: {len(tr)} vs {len(alone)} samples"
+        assert np.array_equal(tr.t, alone.t), f"batch body {i}: times differ"
+        for f in FIELDS:
+            a, b = getattr(tr, f), getattr(alone, f)
+            if a is None or b is None:
+                assert a is None and b is None, f"batch body {i}: {f} in one only"
+                continue
+            scale = max(1.0, float(np.max(np.abs(b))))
+            err = float(np.max(np.abs(a - b)))
+            assert err <= BATCH_ROUNDOFF[offer.precision] * scale, (
+                f"batch body {i} vs its run alone: {f} differs by {err:.3g}")
     for i, st in enumerate(batch.engine_settings):
         with built(offer, problems[i], DT) as a:
             assert json.loads(json.dumps(st, allow_nan=False)) == json.loads(json.dumps(a.settings))

@@ -20,7 +20,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 from freebody.adapters import mjx_adapter  # noqa: E402
-from freebody.adapters.mjx_adapter import MjxAdapter, simulate_batch  # noqa: E402
+from freebody.adapters.mjx_adapter import CHUNK_STEPS, MjxAdapter  # noqa: E402
 from freebody.adapters.mujoco_adapter import MujocoAdapter  # noqa: E402
 from freebody.errors import InputError  # noqa: E402
 from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
@@ -39,8 +39,6 @@ FLOAT32_DIFF_MIN = 1e-9
 FLOAT32_DIFF_MAX = 1e-4
 # simulate_batch (vmapped) vs one body alone, float64, 30 steps: round-off only.
 BATCH_TOL = 1e-12
-# Step-by-step (single jitted step) vs simulate (scan), float64, 12 steps: the same function.
-STEPWISE_TOL = 1e-13
 STEPS = 60
 DT = 0.01
 
@@ -101,18 +99,22 @@ def _head(tr, n):
                       tr.angular_velocity[:n])
 
 
-def test_step_by_step_equals_simulate():
+@pytest.mark.parametrize("chunk_steps", [1, 7])
+def test_a_run_in_pieces_equals_the_run_in_one_piece(chunk_steps):
+    """advance(n) with n below CHUNK_STEPS runs a padded compiled chunk; the Data carried on is that
+    of the last real step, so pieces of any size (also across a CHUNK_STEPS boundary) give the
+    one-piece run bit for bit, and the same final Data."""
     pb = _loaded_problem()
-    n = 12
+    n = CHUNK_STEPS + 10 if chunk_steps == 7 else 40
+    one = MjxAdapter(pb, DT, "Euler", "float64")
+    whole = one.simulate(n)
     a = MjxAdapter(pb, DT, "Euler", "float64")
-    for k in range(n):
-        a.apply_loads(k)
-        a.step()
-    x, q, v, w = a.read_state()
-    ref = MjxAdapter(pb, DT, "Euler", "float64").simulate(n)
-    assert float(geodesic_angle(q, ref.quaternion_wxyz[-1])) <= STEPWISE_TOL
-    assert np.max(np.abs(x - ref.position[-1])) <= STEPWISE_TOL
-    assert np.max(np.abs(w - ref.angular_velocity[-1])) <= STEPWISE_TOL
+    pieces = a.simulate(n, chunk_steps=chunk_steps)
+    assert a.k == one.k == n
+    for f in ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity"):
+        assert np.array_equal(getattr(pieces, f), getattr(whole, f)), f
+    for f in ("time", "qpos", "qvel", "qacc", "qacc_warmstart"):
+        assert np.array_equal(np.asarray(getattr(a._d, f)), np.asarray(getattr(one._d, f))), f
 
 
 def test_float32_run_is_float32_and_reported_so():
@@ -144,7 +146,8 @@ def test_float32_guard_rejects_a_float64_computation():
     with mjx_adapter._x64(True):
         rows = jnp.zeros((2, mjx_adapter._ROW))
         with pytest.raises(RuntimeError, match="float64"):
-            mjx_adapter._compiled("guard-probe", mjx_adapter._chunk_jit, "float32", (a._m, a._d, rows))
+            mjx_adapter._compiled("guard-probe", mjx_adapter._chunk_jit, "float32",
+                                  (a._m, a._d, rows, jnp.int32(2)))
 
 
 def test_switching_precision_scopes_does_not_reuse_stale_traces():
@@ -203,7 +206,8 @@ def test_simulate_batch_equals_single_runs():
                 Problem("plain", "", Body(0.7, np.diag([1.0, 2.0, 3.0])),
                         InitialState([0, 0, 0], [1, 0, 0, 0], [1.0, 0, 0], [0.01, 5.0, 0.0]),
                         [0.0, 0.0, -1.0], duration=1.0)]
-    batch = simulate_batch(problems, DT, n, "Euler", "float64")
+    assert MjxAdapter.supports_batch()
+    batch = MjxAdapter.simulate_batch(problems, DT, n, "Euler", "float64")
     assert len(batch.trajectories) == 3 and batch.diverged_at_s == [None, None, None]
     assert batch.compile_time_s >= 0.0 and batch.step_time_s > 0.0
     for pb, tr in zip(problems, batch.trajectories):
