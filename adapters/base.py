@@ -284,12 +284,15 @@ class EngineEntry(NamedTuple):
 
     import_name : the engine's top-level Python module (``find_spec`` says whether it is installed).
     module, cls : where its adapter class lives.  install_hint : how to install the engine.
+    cache_env : an environment variable naming a folder where the engine keeps compiled code
+        (JIT engines): worker processes of one invocation are given one shared folder.
     """
 
     import_name: str
     module: str
     cls: str
     install_hint: str = "pip install 'freebody[engines]'"
+    cache_env: str | None = None
 
 
 # engine name -> its entry.  Order = report order.
@@ -300,7 +303,7 @@ ENGINES: dict[str, EngineEntry] = {
     "pybullet": EngineEntry("pybullet", "freebody.adapters.pybullet_adapter", "PybulletAdapter"),
     "dart": EngineEntry("dartpy", "freebody.adapters.dart_adapter", "DartAdapter"),
     "mjx": EngineEntry("jax", "freebody.adapters.mjx_adapter", "MjxAdapter",
-                       "pip install 'freebody[jax]'"),
+                       "pip install 'freebody[jax]'", cache_env="JAX_COMPILATION_CACHE_DIR"),
 }
 
 # The engine whose runs are freebody's own reference maps: shared with scheme identification (so
@@ -347,7 +350,7 @@ def resolve_engine(name: str) -> str:
 
 def is_available(name: str) -> bool:
     """Whether the engine's package can be found, without importing it."""
-    import_name = registry()[resolve_engine(name)][0]
+    import_name = registry()[resolve_engine(name)].import_name
     return importlib.util.find_spec(import_name) is not None
 
 
@@ -358,7 +361,8 @@ def load_adapter(name: str) -> type[Adapter]:
     a broken install raises its real error, to be recorded as a failed run).
     """
     name = resolve_engine(name)
-    import_name, module, cls, hint = registry()[name]
+    entry = registry()[name]
+    import_name, module, cls, hint = entry.import_name, entry.module, entry.cls, entry.install_hint
     try:
         mod = importlib.import_module(module)
     except ImportError as e:

@@ -209,10 +209,12 @@ class LocalPool:
         self.store = tempfile.mkdtemp(prefix="freebody-truths-") if share_truths else None
         self.options = {"sys_path": list(sys.path), "engines": dict(base.ENGINES if registry is None else registry),
                         "preimport": list(engines), "store": self.store, "env": {}}
-        if self.store is not None and "JAX_COMPILATION_CACHE_DIR" not in os.environ:
-            # workers share JAX's compiled programs (mjx compiles for seconds per integrator and
-            # precision); the cache goes with the store at close()
-            self.options["env"]["JAX_COMPILATION_CACHE_DIR"] = os.path.join(self.store, "jax-cache")
+        for entry in self.options["engines"].values():
+            var = getattr(entry, "cache_env", None)
+            if self.store is not None and var and var not in os.environ:
+                # workers share a JIT engine's compiled programs (mjx compiles for seconds per
+                # integrator and precision); the cache goes with the store at close()
+                self.options["env"][var] = os.path.join(self.store, f"cache-{var.lower()}")
         self._start_failures = 0
 
     # -- the event loop --

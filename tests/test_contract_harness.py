@@ -110,3 +110,42 @@ def test_the_fake_engine_blows_up_as_diverged(batcher):
 def test_the_fake_engine_passes_the_engine_level_checks(batcher):
     conformance.test_capabilities_are_well_formed(batcher)
     conformance.test_offered_precisions_build_and_others_are_refused(batcher)
+
+
+# --- the harness knows engines only through the contract ---------------------------------------
+
+def _harness_modules():
+    import pathlib
+
+    import freebody
+
+    root = pathlib.Path(freebody.__file__).parent
+    return sorted(p for p in root.rglob("*.py"))
+
+
+def test_no_harness_module_imports_an_engine_or_dispatches_on_its_name():
+    """freebody/ (the harness) imports no engine package and never compares a value with an
+    engine's name: what differs between engines is declared by their adapters (capabilities) or
+    their registry entries.  Fails on ``if engine == "mjx"``, ``spec.engine in ("mujoco",)``,
+    ``import pybullet``."""
+    import ast
+
+    from freebody.adapters.base import ENGINES, REFERENCE_ENGINE
+
+    names = set(ENGINES) | {REFERENCE_ENGINE}
+    packages = {entry.import_name for name, entry in ENGINES.items() if name != REFERENCE_ENGINE}
+    packages |= {"mujoco", "pybullet", "dartpy", "jax"}
+    found = []
+    for path in _harness_modules():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                mods = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+                for m in mods:
+                    if m.split(".")[0] in packages and not (isinstance(node, ast.ImportFrom) and node.level):
+                        found.append(f"{path.name}:{node.lineno} imports {m}")
+            if isinstance(node, ast.Compare):
+                for sub in ast.walk(node):
+                    if isinstance(sub, ast.Constant) and sub.value in names:
+                        found.append(f"{path.name}:{node.lineno} compares with {sub.value!r}")
+    assert not found, "engine-specific code in the harness:\n" + "\n".join(found)
