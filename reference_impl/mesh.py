@@ -1,7 +1,7 @@
 """Closed triangle meshes: validation and exact mass properties of the solid they bound.
 
 A :class:`TriangleMesh` is plain data (vertices and triangles); reading OBJ/STL files is the
-harness's job (``freebody.meshfile``).  :func:`validate` checks that the mesh bounds a solid:
+harness's job (``freebody.input.meshfile``).  :func:`validate` checks that the mesh bounds a solid:
 
 * every vertex is finite and every triangle has three distinct vertices and a non-zero area;
 * it is **closed** and **consistently wound**: every edge is shared by exactly two triangles that

@@ -1,6 +1,6 @@
 """The free-body problem as plain, immutable data: body, initial state, gravity, loads.
 
-Knows nothing of files or engines: ``freebody.casefile`` builds a :class:`Problem` from TOML,
+Knows nothing of files or engines: ``freebody.input.casefile`` builds a :class:`Problem` from TOML,
 adapters build engine worlds from it.  All vectors are in the canonical convention
 (see :mod:`conventions`).
 """

@@ -28,7 +28,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))  # run from a checkout without installing
 
-from freebody.meshfile import format_obj  # noqa: E402
+from freebody.input.meshfile import format_obj  # noqa: E402
 from freebody.reference_impl.mesh import TriangleMesh, mass_properties, validate  # noqa: E402
 
 Box = tuple[tuple[float, float, float], tuple[float, float, float]]  # (lo, hi), m

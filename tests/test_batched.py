@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from freebody.casefile import load_case
+from freebody.input.casefile import load_case
 from freebody.reference_impl.batched import (BATCHED_INTEGRATORS, _EXP_Z_LIMITS, _Work, _exp_into,
                                              quat_from_matrix_batch, simulate_batch,
                                              simulate_problem, supports_problem,

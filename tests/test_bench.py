@@ -12,7 +12,7 @@ import math
 import pytest
 
 from freebody.adapters.base import engine_names
-from freebody.bench import BATCH_SIZES, ENGINE_EQUIVALENT_MAPS, SCHEMA_VERSION
+from freebody.tools.bench import BATCH_SIZES, ENGINE_EQUIVALENT_MAPS, SCHEMA_VERSION
 from freebody.cli import main
 from freebody.reference_impl.batched import BATCHED_INTEGRATORS
 
@@ -63,7 +63,7 @@ def test_quick_bench_reports_every_figure_as_a_positive_number(quick_doc):
 
 
 def test_bench_json_prints_one_object_and_the_text_summary_renders_it(quick_run):
-    from freebody.bench import format_text
+    from freebody.tools.bench import format_text
 
     stdout, doc = quick_run
     assert json.loads(stdout) == doc

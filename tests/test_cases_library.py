@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import freebody
-from freebody.casefile import bundled_case_paths, load_case
+from freebody.input.casefile import bundled_case_paths, load_case
 from freebody.cli import main
 from freebody.reference_impl.rotations import geodesic_angle, quat_from_rotvec, quat_multiply
 from freebody.reference_impl.truth import truth_kind, truth_trajectory

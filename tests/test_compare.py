@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 
 from freebody.cli import main
-from freebody.compare import compare, load_side, resolve_tolerances
-from freebody.compare_tolerances import DEFAULT_RTOL, ORIENTATION_ATOL_RAD
+from freebody.results.compare import compare, load_side, resolve_tolerances
+from freebody.results.compare_tolerances import DEFAULT_RTOL, ORIENTATION_ATOL_RAD
 from freebody.testing import assert_no_regression
 
 WORSE = 1.5  # a metric 50 % worse: far beyond the default 1 %

@@ -7,9 +7,9 @@ import pytest
 
 from conftest import FAST_ENGINES, engine_param
 from freebody.adapters.base import REFERENCE_ENGINE
-from freebody.casefile import load_case
+from freebody.input.casefile import load_case
 from freebody.cli import main
-from freebody.demo import demo_dzhanibekov, demo_integrators, demo_quiz, quiz_closed_form
+from freebody.tools.demo import demo_dzhanibekov, demo_integrators, demo_quiz, quiz_closed_form
 
 QUIZ_ROUNDOFF = 1e-12  # freebody's euler-matrix vs the closed form: a few float64 operations
 QUIZ_RK4_RAD = 1e-8  # RK4 on q is exact to O(h^5) for the rotation: 3e-9 rad at h = 0.1

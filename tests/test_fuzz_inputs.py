@@ -10,10 +10,10 @@ import tomllib
 import numpy as np
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from freebody.casefile import parse_case
+from freebody.input.casefile import parse_case
 from freebody.cli import main
 from freebody.errors import InputError
-from freebody.runner import STATUSES, RunSpec, execute
+from freebody.run.runner import STATUSES, RunSpec, execute
 
 VALID = tomllib.loads("""
 name = "fuzz"

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from freebody.casefile import load_case
+from freebody.input.casefile import load_case
 from freebody.cli import main
 from freebody.errors import InputError
-from freebody.meshfile import body_from_mesh, format_obj, read_mesh
+from freebody.input.meshfile import body_from_mesh, format_obj, read_mesh
 from freebody.reference_impl import primitives
 from freebody.reference_impl.mesh import MeshError, TriangleMesh, mass_properties, validate
 

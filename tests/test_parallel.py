@@ -15,14 +15,14 @@ import pytest
 from conftest import FAST_ENGINES
 from fake_engines.crashing_adapter import REGISTRY_ENTRY
 from freebody.adapters.base import ENGINES, is_available
-from freebody.casefile import load_case
+from freebody.input.casefile import load_case
 from freebody.cli import main
-from freebody.executor import plan
+from freebody.run.executor import plan
 from freebody.reference_impl.integrators import simulate as reference_simulate
-from freebody.results import load_trajectory
-from freebody.runner import SCHEME_CANDIDATES, expand
-from freebody.sharedcache import SHAREABLE_REFERENCES
-from freebody.suite import run_specs
+from freebody.results.document import load_trajectory
+from freebody.run.runner import SCHEME_CANDIDATES, expand
+from freebody.run.sharedcache import SHAREABLE_REFERENCES
+from freebody.run.suite import run_specs
 
 # Keys of a run that measure time, not physics: the only ones allowed to differ between executors.
 TIMING_KEYS = ("wall_time_s", "compile_time_s")
@@ -193,7 +193,7 @@ def test_dask_gives_the_local_results_and_isolates_a_crash(crasher, dask_schedul
 
 def test_dask_unreachable_scheduler_is_bad_input(tmp_path, capsys, monkeypatch):
     pytest.importorskip("distributed", reason="dask.distributed not installed (pip install 'freebody[dask]')")
-    from freebody import dask_executor
+    from freebody.run import dask_executor as dask_executor
 
     monkeypatch.setattr(dask_executor, "CONNECT_TIMEOUT_S", 1)  # nothing listens there: fail fast
     code = main(["run", "quiz", "--engine", "reference", "--out", str(tmp_path), "--quiet",

@@ -7,10 +7,10 @@ import pytest
 pytest.importorskip("jax", reason="mjx not installed (pip install 'freebody[jax]')")
 pytest.importorskip("mujoco.mjx", reason="mujoco-mjx not installed (pip install 'freebody[jax]')")
 
-from freebody.casefile import load_case  # noqa: E402
-from freebody.report_data import port_comparison  # noqa: E402
-from freebody.runner import execute, expand  # noqa: E402
-from freebody.summary import summary_table  # noqa: E402
+from freebody.input.casefile import load_case  # noqa: E402
+from freebody.report.data import port_comparison  # noqa: E402
+from freebody.run.runner import execute, expand  # noqa: E402
+from freebody.report.summary import summary_table  # noqa: E402
 
 MJX_F64_VS_C_RAD = 1e-9  # same map in float64 over 0.5 s at dt = 0.01: round-off only
 MJX_F32_VS_C_MIN_RAD = 1e-7  # float32 keeps ~7 digits: it must be visibly apart from float64

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from freebody.casefile import load_case
+from freebody.input.casefile import load_case
 from freebody.reference_impl.integrators import INTEGRATORS, integrate_euler_matrix, simulate
 from freebody.reference_impl.problem import Body, InitialState, Load, Problem
 from freebody.reference_impl.rotations import geodesic_angle, quat_conjugate, quat_multiply, skew

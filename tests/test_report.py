@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from freebody.cli import main
-from freebody.convergence import ORIENTATION_FLOOR_RAD, fit_orders
-from freebody.report import write_reports
+from freebody.run.convergence import ORIENTATION_FLOOR_RAD, fit_orders
+from freebody.report.render import write_reports
 
 ORDER_ATOL = 1e-9  # errors made exactly C dt^p: the least-squares fit returns p to round-off
 SAME_STATE_RAD = 1e-15  # geodesic angle of a quaternion to itself: normalisation round-off only

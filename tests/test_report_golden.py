@@ -16,10 +16,10 @@ from pathlib import Path
 import pytest
 
 from freebody.cli import main
-from freebody.compare import compare, default_tolerances
-from freebody.report import convergence_of
-from freebody import report_data as rd
-from freebody.report_md import render_markdown
+from freebody.results.compare import compare, default_tolerances
+from freebody.report.render import convergence_of
+from freebody.report import data as rd
+from freebody.report.markdown import render_markdown
 
 GOLDEN = Path(__file__).parent / "golden"
 UPDATE = os.environ.get("FREEBODY_UPDATE_GOLDEN") == "1"

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from freebody.adapters.base import load_adapter
-from freebody.selfcheck import CHECKS, run_check
+from freebody.run.selfcheck import CHECKS, run_check
 
 
 @pytest.mark.parametrize("check", CHECKS)

@@ -14,7 +14,7 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..baseline import store_baseline
+    from ..results.baseline import store_baseline
 
     base = store_baseline(args.dir, args.to, force=args.force)
     engines = ", ".join(f"{e} {v or 'not installed'}" for e, v in (base.get("engines") or {}).items())

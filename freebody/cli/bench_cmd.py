@@ -1,4 +1,4 @@
-"""``freebody bench``: freebody's speed next to the engines' (see :mod:`freebody.bench`)."""
+"""``freebody bench``: freebody's speed next to the engines' (see :mod:`freebody.tools.bench`)."""
 from __future__ import annotations
 
 ORDER = 90
@@ -29,8 +29,8 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..bench import BenchConfig, format_text, run_bench
-    from ..results import write_json_atomic
+    from ..tools.bench import BenchConfig, format_text, run_bench
+    from ..results.document import write_json_atomic
 
     if args.repeats is not None and args.repeats < 1:
         raise InputError(f"--repeats: must be an integer >= 1, got {args.repeats}")

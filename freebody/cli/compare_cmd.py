@@ -22,7 +22,7 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..compare import compare, load_side, resolve_tolerances
+    from ..results.compare import compare, load_side, resolve_tolerances
 
     tols = resolve_tolerances(args.tolerances, args.rtol, args.atol)
     base = load_side(args.baseline, "baseline")

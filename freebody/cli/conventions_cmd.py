@@ -12,8 +12,8 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..adapters.base import EngineMissing, load_adapter
-    from ..runner import select_engines
-    from ..selfcheck import CHECKS, run_check
+    from ..run.runner import select_engines
+    from ..run.selfcheck import CHECKS, run_check
 
     failed = False
     for engine in select_engines(args.engine):

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 ORDER = 50
 
-DEMO_NAMES = ("integrators", "quiz", "dzhanibekov")  # freebody.demo.DEMOS, without importing it
+DEMO_NAMES = ("integrators", "quiz", "dzhanibekov")  # freebody.tools.demo.DEMOS, without importing it
 DEFAULT_OUT = "reports/demo"
 
 
@@ -25,9 +25,9 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..demo import _stderr, run_demo
+    from ..tools.demo import _stderr, run_demo
     from ..errors import InputError
-    from ..runner import select_engines
+    from ..run.runner import select_engines
 
     names = args.names or list(DEMO_NAMES)
     for n in names:

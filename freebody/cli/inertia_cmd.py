@@ -49,7 +49,7 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..inertia import compare, compare_table, load_target, report_approx, report_exact, write_compare
+    from ..tools.inertia import compare, compare_table, load_target, report_approx, report_exact, write_compare
 
     target = load_target(args.target, args.size, density=args.density, mass=args.mass)
     if args.compare:

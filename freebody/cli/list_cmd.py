@@ -5,7 +5,7 @@ ORDER = 10
 
 import textwrap
 
-from ..casefile import bundled_case_paths, load_case
+from ..input.casefile import bundled_case_paths, load_case
 from ..reference_impl.truth import truth_kind
 
 

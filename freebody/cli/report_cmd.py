@@ -19,10 +19,10 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..casefile import load_case
+    from ..input.casefile import load_case
     from ..errors import InputError
-    from ..report import write_reports
-    from ..results import load_results
+    from ..report.render import write_reports
+    from ..results.document import load_results
 
     out_dir = Path(args.dir)
     if not out_dir.is_dir():

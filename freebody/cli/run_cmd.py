@@ -5,10 +5,10 @@ ORDER = 20
 
 from pathlib import Path
 
-from ..casefile import bundled_case_paths, load_case
-from ..runner import expand, select_engines
-from ..suite import run_specs
-from ..summary import summary_table
+from ..input.casefile import bundled_case_paths, load_case
+from ..run.runner import expand, select_engines
+from ..run.suite import run_specs
+from ..report.summary import summary_table
 from .argtypes import positive_float as _positive_float, positive_int as _positive_int
 
 DEFAULT_OUT = "reports/latest"
@@ -54,13 +54,13 @@ def run(args) -> int:
     engines = select_engines(args.engine)
     specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision)
     out_dir = Path(args.out)
-    from ..suite import default_jobs
+    from ..run.suite import default_jobs
 
     doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet, save_every=args.save_every,
                        jobs=args.jobs or default_jobs(), timeout=args.timeout, executor=args.executor,
                        scheduler=args.scheduler)
     print(summary_table(doc["runs"]), flush=True)
-    from ..report import finish_run  # fitted orders into results.json, then report.md/.html
+    from ..report.render import finish_run  # fitted orders into results.json, then report.md/.html
 
     doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report)
     print(f"\nresults: {out_dir / 'results.json'}")

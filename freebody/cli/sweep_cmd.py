@@ -43,8 +43,8 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     import math
 
-    from ..runner import select_engines
-    from ..sweep import SweepSettings, sweep
+    from ..run.runner import select_engines
+    from ..tools.sweep import SweepSettings, sweep
 
     if args.count < 1:
         raise InputError(f"--count: must be >= 1, got {args.count}")

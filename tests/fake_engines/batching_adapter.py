@@ -1,5 +1,5 @@
 """A small numpy engine that steps bodies as a batch (``supports_batch()``), for the tests of the
-harness's batching path (``freebody.sweep``) and of the conformance checks.
+harness's batching path (``freebody.tools.sweep``) and of the conformance checks.
 
 Registered by the tests in :data:`freebody.adapters.base.ENGINES` as ``batcher``
 (:data:`REGISTRY_ENTRY`); never by freebody itself.

@@ -1,18 +1,18 @@
 """Execute runs: in this process, or in isolated worker processes, with a time limit per run.
 
-Each run is :func:`freebody.runner.execute` of one :class:`~freebody.runner.RunSpec`; the
+Each run is :func:`freebody.run.runner.execute` of one :class:`~freebody.run.runner.RunSpec`; the
 executors differ only in where it happens, never in the numbers.
 
 - :func:`run_serial`: in this process, one after another (``--jobs 1``).
-- :class:`LocalPool`: ``jobs`` long-lived worker processes (``python -m freebody.worker``,
+- :class:`LocalPool`: ``jobs`` long-lived worker processes (``python -m freebody.run.worker``,
   spawned, never forked: forking a process that has imported JAX or an engine is unsafe), each in
   its own process group.  A worker runs one run at a time; a run that crashes its worker (even a
   segfault or ``abort()``) is ``failed`` with the signal, a run past the time limit is killed and
   ``failed``; the worker is replaced and the other runs go on.  Workers are reused across runs.
-- :func:`freebody.dask_executor.run_dask`: the same tasks on a dask.distributed cluster.
+- :func:`freebody.run.dask_executor.run_dask`: the same tasks on a dask.distributed cluster.
 
 Sharing truths.  :func:`plan` groups the runs by (case, dt, steps), whose truth and reference maps
-they share (see :mod:`freebody.sharedcache`): a group's first run computes the truth before its
+they share (see :mod:`freebody.run.sharedcache`): a group's first run computes the truth before its
 engine starts, and the reference engine's runs of the identification maps produce those maps; the
 other runs of the group wait for what they need (other groups' runs fill the time), then read it
 from a directory shared by the workers.  Groups start largest first.
@@ -78,7 +78,7 @@ def _needed_references(spec: RunSpec) -> tuple[str, ...]:
 def plan(specs: list[RunSpec], **run_options) -> list[Task]:
     """Tasks of every spec, ordered: groups (problem, dt, steps) by estimated cost, largest first;
     in a group the run that computes the truth (its first reference run, else its first run), then
-    the reference runs that produce identification maps, then the rest, in spec order.  ``run_options`` go to every :class:`~freebody.worker.RunTask`."""
+    the reference runs that produce identification maps, then the rest, in spec order.  ``run_options`` go to every :class:`~freebody.run.worker.RunTask`."""
     keys: dict[int, str] = {}
     groups: dict[tuple, list[int]] = {}
     for i, s in enumerate(specs):
@@ -136,7 +136,7 @@ class Worker:
         r_res, w_res = os.pipe()
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "freebody.worker", str(r_task), str(w_res)],
+                [sys.executable, "-m", "freebody.run.worker", str(r_task), str(w_res)],
                 pass_fds=(r_task, w_res), stdin=subprocess.DEVNULL, stdout=2,  # stray prints: to stderr
                 process_group=0, env={**os.environ, **options.get("env", {})})
         finally:
@@ -201,7 +201,7 @@ class LocalPool:
 
     def __init__(self, jobs: int, timeout: float | None = None, engines=(), share_truths: bool = True,
                  registry: dict | None = None):
-        from .adapters import base
+        from ..adapters import base
 
         self.jobs = max(1, int(jobs))
         self.timeout = timeout

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import report_data as rd
-from .convergence import FITTED_METRICS, MIN_POINTS
+from . import data as rd
+from ..run.convergence import FITTED_METRICS, MIN_POINTS
 
 DPI = 90
 MAX_POINTS = 800  # samples drawn per line: more is invisible at this size, and slow
@@ -290,9 +290,9 @@ def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | No
     """One 4-panel figure for the runs of a case at one dt: orientation error (log), energy error
     (log), angular momentum error (log), world angular velocity components vs the truth.
     Returns (PNG bytes or None, notes about runs that could not be drawn)."""
-    from .metrics import series
-    from .reference_impl.rotations import geodesic_angle
-    from .results import load_trajectory
+    from ..run.metrics import series
+    from ..reference_impl.rotations import geodesic_angle
+    from ..results.document import load_trajectory
 
     col = colours(all_labels)
     notes = []

@@ -10,9 +10,9 @@ import os
 import tempfile
 from pathlib import Path
 
-from . import report_data as rd
-from .convergence import fit_orders
-from .results import write_json_atomic
+from . import data as rd
+from ..run.convergence import fit_orders
+from ..results.document import write_json_atomic
 
 
 def _umask() -> int:
@@ -39,10 +39,10 @@ def write_text_atomic(path: Path, text: str) -> None:
 
 
 def augment(doc: dict, problems: dict | None = None) -> dict:
-    """The results document with ``"convergence"`` (see :mod:`freebody.convergence`) and ``"cases"``
+    """The results document with ``"convergence"`` (see :mod:`freebody.run.convergence`) and ``"cases"``
     (name -> description, truth, mass kg, inertia kg m^2 (3x3, COM, body frame), gravity m/s^2
     (world), ...: what a report needs to recompute L and E without the case file)."""
-    from .reference_impl.truth import truth_kind
+    from ..reference_impl.truth import truth_kind
 
     out = dict(doc)
     out["convergence"] = fit_orders(doc.get("runs") or [])
@@ -68,11 +68,11 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     problems : case name -> Problem, for cases that results.json does not describe.
     Returns the paths written.
     """
-    from .report_md import render_markdown
+    from .markdown import render_markdown
 
     out_dir = Path(out_dir)
     if doc is None:
-        from .results import load_results
+        from ..results.document import load_results
 
         doc = load_results(out_dir)
     conv = convergence_of(doc)
@@ -83,8 +83,8 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs))
     written = [md_path]
     if html:
-        from . import report_plots as plots
-        from .report_html import render_html
+        from . import plots as plots
+        from .html import render_html
 
         figures: dict = {"heatmap": plots.heatmap(runs), "convergence": plots.convergence(runs, conv),
                          "speed": plots.speed_accuracy(runs)}

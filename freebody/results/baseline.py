@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .errors import InputError
-from .results import write_json_atomic
+from ..errors import InputError
+from .document import write_json_atomic
 
 
 def make_baseline(doc: dict, source: str) -> dict:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .reference_impl.mesh import MeshError, TriangleMesh, mass_properties, validate, weld
+from ..reference_impl.mesh import MeshError, TriangleMesh, mass_properties, validate, weld
 
 FORMATS = (".obj", ".stl")
 

@@ -6,8 +6,8 @@ import base64
 from html import escape
 from pathlib import Path
 
-from . import report_data as rd
-from . import report_md as md
+from . import data as rd
+from . import markdown as md
 
 CSS = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', sans-serif; margin: 1.5em auto; max-width: 1400px;

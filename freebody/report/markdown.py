@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import report_data as rd
-from .convergence import SHORT_NAMES
+from . import data as rd
+from ..run.convergence import SHORT_NAMES
 
 RUN_COLUMNS = ("engine run", "dt (s)", "status", "orientation max (rad)", "orientation final (rad)",
                "L max (rel)", "E max (rel)", "position max (m)", "wall s / sim s", "reproduces")

@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .adapters.base import load_adapter
-from .reference_impl.conventions import angular_momentum
+from ..adapters.base import load_adapter
+from ..reference_impl.conventions import angular_momentum
 from .runner import scheme_candidates
-from .reference_impl.integrators import simulate as reference_simulate
-from .reference_impl.problem import Body, InitialState, Load, Problem
-from .reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply
+from ..reference_impl.integrators import simulate as reference_simulate
+from ..reference_impl.problem import Body, InitialState, Load, Problem
+from ..reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply
 
 INITIAL_STATE_ATOL = 1e-12  # reading back what was just set: conversions only, round-off
 # One step of h = 1e-3 from rest with a push: the engines' maps change L by h tau to within

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .errors import InputError
-from .reference_impl import approx, massprops, primitives
-from .reference_impl.mesh import MeshError, TriangleMesh, mass_properties
+from .. import __version__
+from ..errors import InputError
+from ..reference_impl import approx, massprops, primitives
+from ..reference_impl.mesh import MeshError, TriangleMesh, mass_properties
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ def load_target(target: str, size, *, density: float | None = None, mass: float 
 
     Raises :class:`InputError` (one line naming the file or option) for bad input.
     """
-    from .meshfile import body_from_mesh
+    from ..input.meshfile import body_from_mesh
 
     path = Path(target)
     if target in massprops.SHAPES and not path.exists():
@@ -221,7 +221,7 @@ def compare_table(rows: list[dict]) -> str:
 
 def write_compare(t: Target, rows: list[dict], out_dir: Path, schema_version: int) -> tuple[Path, Path]:
     """Write ``inertia_<name>.png`` (log-log errors vs N) and ``inertia_<name>.json``; their paths."""
-    from .results import write_json_atomic
+    from ..results.document import write_json_atomic
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

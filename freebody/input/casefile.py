@@ -34,10 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import tolerances as tol
-from .errors import InputError
-from .reference_impl import massprops
-from .reference_impl.problem import Body, InitialState, Load, Problem
+from .. import tolerances as tol
+from ..errors import InputError
+from ..reference_impl import massprops
+from ..reference_impl.problem import Body, InitialState, Load, Problem
 
 TOP_KEYS = {"name", "description", "duration", "duration_steps", "dt", "body", "initial", "world", "loads"}
 BODY_KEYS = {"mass", "inertia", "shape", "size", "density", "mesh"}
@@ -260,7 +260,7 @@ def _parse_mesh_body(c: _Ctx, b) -> Body:
     initial.position is where that COM starts (world).
     """
     from .meshfile import body_from_mesh
-    from .reference_impl.mesh import MeshError
+    from ..reference_impl.mesh import MeshError
 
     for k in ("inertia", "shape", "size"):
         if k in b:

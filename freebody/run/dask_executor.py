@@ -1,7 +1,7 @@
 """The same runs on an existing dask.distributed cluster (``--executor dask --scheduler ADDRESS``).
 
-One dask task per group of runs that share a truth (see :func:`freebody.executor.plan`).  On the
-dask worker, the group runs in a freebody worker process (:class:`freebody.executor.LocalPool` with
+One dask task per group of runs that share a truth (see :func:`freebody.run.executor.plan`).  On the
+dask worker, the group runs in a freebody worker process (:class:`freebody.run.executor.LocalPool` with
 one worker, kept for the next group), so a crash or a run past ``--timeout`` costs that run only,
 never the dask worker, and the numbers are those of a local run.  The cluster's workers need
 freebody and the engines installed; trajectories come back to the client, which writes them.
@@ -14,7 +14,7 @@ import atexit
 import threading
 import uuid
 
-from .errors import InputError
+from ..errors import InputError
 from .executor import LocalPool, OnDone, Task
 from .worker import RunTask, failed_payload
 
@@ -72,7 +72,7 @@ def _close_idle_pools() -> None:
 def run_dask(tasks: list[Task], scheduler: str, timeout: float | None, engines, on_done: OnDone) -> None:
     """Send each group of ``tasks`` to the dask cluster at ``scheduler``; ``on_done(index, payload)``
     for each run as its group comes back.  A group lost with its dask worker is ``failed``."""
-    from .adapters import base
+    from ..adapters import base
 
     Client, as_completed = _import_distributed()
     try:

@@ -9,10 +9,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .reference_impl.conventions import Trajectory, angular_momentum, kinetic_energy, potential_energy
-from .reference_impl.problem import Problem
-from .reference_impl.rotations import geodesic_angle
-from . import tolerances as tol
+from ..reference_impl.conventions import Trajectory, angular_momentum, kinetic_energy, potential_energy
+from ..reference_impl.problem import Problem
+from ..reference_impl.rotations import geodesic_angle
+from .. import tolerances as tol
 
 METRIC_KEYS = (
     "orientation_error_max_rad",

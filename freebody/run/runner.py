@@ -3,7 +3,7 @@ status in one place.
 
 A run's status is data:
 - ``ok``: the engine ran to the end and stayed within the case's bounds;
-- ``diverged``: non-finite state, beyond the bounds (see :func:`freebody.metrics.divergence`), or the
+- ``diverged``: non-finite state, beyond the bounds (see :func:`freebody.run.metrics.divergence`), or the
   engine's own instability warning; ``diverged_at_s`` says when;
 - ``failed``: the engine (or its adapter) raised; the message says what;
 - ``skipped``: the engine is not installed; the message says how to install it.
@@ -16,17 +16,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .adapters.base import (REFERENCE_ENGINE, EngineDiverged, EngineMissing, UnknownEngine,
+from ..adapters.base import (REFERENCE_ENGINE, EngineDiverged, EngineMissing, UnknownEngine,
                             is_available, load_adapter, resolve_engine, engine_names)
-from .adapters.capture import capture_output
-from .errors import InputError
+from ..adapters.capture import capture_output
+from ..errors import InputError
 from .metrics import Series, divergence, summarize
-from .reference_impl.conventions import Trajectory
-from .reference_impl.integrators import simulate as reference_simulate
-from .reference_impl.problem import Problem
-from .reference_impl.rotations import geodesic_angle
-from .reference_impl.truth import truth_kind, truth_trajectory
-from . import tolerances as tol
+from ..reference_impl.conventions import Trajectory
+from ..reference_impl.integrators import simulate as reference_simulate
+from ..reference_impl.problem import Problem
+from ..reference_impl.rotations import geodesic_angle
+from ..reference_impl.truth import truth_kind, truth_trajectory
+from .. import tolerances as tol
 
 STATUSES = ("ok", "diverged", "failed", "skipped")
 PRECISIONS = ("float32", "float64")  # floating-point precisions an engine may offer

@@ -14,9 +14,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Callable, TextIO
 
-from .adapters.base import load_adapter
-from .errors import InputError
-from .results import results_document, save_trajectory, trajectory_filename, write_json_atomic
+from ..adapters.base import load_adapter
+from ..errors import InputError
+from ..results.document import results_document, save_trajectory, trajectory_filename, write_json_atomic
 from .runner import RunOutput, RunSpec
 
 EXECUTORS = ("local", "dask")

@@ -35,7 +35,7 @@ from typing import Callable
 
 import numpy as np
 
-from . import __version__
+from .. import __version__
 
 SCHEMA_VERSION = 1
 
@@ -98,8 +98,8 @@ def engine_overhead(engine: str, steps: int, repeats: int, progress: bool = Fals
     Returns {"bare_step_s", "freebody_step_s", "overhead_ratio", "integrator", "steps",
     "repeats"}: medians, seconds per step.
     """
-    from .adapters.base import load_adapter
-    from .casefile import load_case
+    from ..adapters.base import load_adapter
+    from ..input.casefile import load_case
 
     cls = load_adapter(engine)
     problem = load_case(CASE)
@@ -130,7 +130,7 @@ def engine_overhead(engine: str, steps: int, repeats: int, progress: bool = Fals
 
 def _batch_inputs(B: int) -> dict:
     """B copies of the case's body with seeded random attitudes and angular velocities."""
-    from .casefile import load_case
+    from ..input.casefile import load_case
 
     body = load_case(CASE).body
     rng = np.random.default_rng(20240606)
@@ -149,8 +149,8 @@ def yardstick_step(steps: int) -> Callable[[], float]:
     """A timer of the yardstick engine's bare loop (``BENCH_YARDSTICK``'s ``Adapter.bare_loop``:
     its own step and state copies) on the case's world, built afresh, untimed, by the adapter on
     every call: returns seconds per step."""
-    from .adapters.base import BENCH_YARDSTICK, load_adapter
-    from .casefile import load_case
+    from ..adapters.base import BENCH_YARDSTICK, load_adapter
+    from ..input.casefile import load_case
 
     cls, problem = load_adapter(BENCH_YARDSTICK), load_case(CASE)
 
@@ -171,7 +171,7 @@ def batched_reference(config: BenchConfig, progress: bool = False) -> dict:
 
     The repeats are interleaved: each repeat times MuJoCo, then every (integrator, B).
     """
-    from .reference_impl.batched import BATCHED_INTEGRATORS, simulate_batch
+    from ..reference_impl.batched import BATCHED_INTEGRATORS, simulate_batch
 
     try:
         mj_timer = yardstick_step(config.engine_steps)
@@ -221,7 +221,7 @@ def _run_help() -> str:
     """``freebody run --help`` (built in this process: which options exist)."""
     import argparse
 
-    from .cli import build_parser
+    from ..cli import build_parser
 
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -271,7 +271,7 @@ def suite_timing(config: BenchConfig, progress: bool = False) -> dict:
 
 def run_bench(config: BenchConfig, progress: bool = False) -> dict:
     """All three measurements as one JSON-ready document (schema :data:`SCHEMA_VERSION`)."""
-    from .adapters.base import EngineMissing, engine_names, is_available, load_adapter
+    from ..adapters.base import EngineMissing, engine_names, is_available, load_adapter
 
     versions: dict[str, str | None] = {}
     overhead: dict[str, float] = {}

@@ -33,20 +33,20 @@ from typing import Callable, TextIO
 
 import numpy as np
 
-from . import __version__
-from .casefile import parse_case
-from .reference_impl.problem import Body, InitialState, Problem
-from .reference_impl.rotations import matrix_from_quat, quat_normalize
-from .reference_impl.truth import truth_kind
-from .results import write_json_atomic
-from .adapters.base import is_available, load_adapter
-from .adapters.capture import capture_output
-from .runner import STATUSES, RunSpec, Simulated, TruthCache, execute, expand, finish
-from .summary import run_label
+from .. import __version__
+from ..input.casefile import parse_case
+from ..reference_impl.problem import Body, InitialState, Problem
+from ..reference_impl.rotations import matrix_from_quat, quat_normalize
+from ..reference_impl.truth import truth_kind
+from ..results.document import write_json_atomic
+from ..adapters.base import is_available, load_adapter
+from ..adapters.capture import capture_output
+from ..run.runner import STATUSES, RunSpec, Simulated, TruthCache, execute, expand, finish
+from ..report.summary import run_label
 
 SWEEP_SCHEMA_VERSION = 1
 
-# The metrics a sweep reduces (maxima over each run, see freebody.metrics), with a short label.
+# The metrics a sweep reduces (maxima over each run, see freebody.run.metrics), with a short label.
 SWEEP_METRICS = {
     "orientation_error_max_rad": "orientation error max (rad)",
     "angular_momentum_error_max_rel": "angular momentum error max (relative)",
@@ -135,7 +135,7 @@ def _str(s: str) -> str:
 
 
 def dump_case(problem: Problem) -> str:
-    """A case file (TOML text, the keys of :mod:`freebody.casefile`) that parses back to ``problem``.
+    """A case file (TOML text, the keys of :mod:`freebody.input.casefile`) that parses back to ``problem``.
 
     Floats are written with Python's shortest round-trip repr, the inertia as the full 3x3 tensor.
     Parsing renormalises the quaternion, which may move it by one rounding error; the sweep avoids
@@ -267,7 +267,7 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
 
     Engines whose adapter steps many bodies at once (``supports_batch()``; mjx: one ``jax.vmap``-ped
     batch per integrator, precision, dt and horizon) do so; the others run body by body.  Every run is judged by
-    :func:`freebody.runner.finish`, so a batched run's result is that of the same run alone.
+    :func:`freebody.run.runner.finish`, so a batched run's result is that of the same run alone.
     Returns the runs as results.json ``runs`` entries (in body, dt, engine, integrator order), without
     the per-run ``engine_settings`` (reproduce a run with ``freebody run`` to see them).
     """
@@ -428,7 +428,7 @@ def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | 
           out_dir: Path | None = None, progress: bool = True, precisions: list[str] | None = None,
           on_bodies: Callable[[list[SweepBody]], None] | None = None) -> SweepOutcome:
     """Draw the bodies, run them, reduce; write sweep.json, sweep.txt and worst/*.toml to out_dir."""
-    from .suite import engine_versions
+    from ..run.suite import engine_versions
 
     t0 = time.perf_counter()
     bodies = random_bodies(settings)
@@ -531,7 +531,7 @@ def format_report(doc: dict, out_dir: str | None) -> str:
 
 def load_sweep(path: str | Path) -> dict:
     """Read a sweep.json (or a directory holding one)."""
-    from .errors import InputError
+    from ..errors import InputError
 
     p = Path(path)
     if p.is_dir():

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__
-from .errors import InputError
-from .reference_impl.conventions import Trajectory
+from .. import __version__
+from ..errors import InputError
+from ..reference_impl.conventions import Trajectory
 
 SCHEMA_VERSION = 1
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")

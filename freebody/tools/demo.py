@@ -9,7 +9,7 @@
   energy error for each engine, and a GIF of the tumbling box.
 
 Figures are drawn with matplotlib's object API on the Agg canvas (no pyplot state, no display);
-matplotlib is imported inside the functions so ``import freebody.demo`` stays light.
+matplotlib is imported inside the functions so ``import freebody.tools.demo`` stays light.
 """
 from __future__ import annotations
 
@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .adapters.base import REFERENCE_ENGINE
-from .casefile import load_case
-from .reference_impl.conventions import Trajectory, angular_velocity_body_from_world
-from .reference_impl.integrators import INTEGRATORS, simulate
-from .reference_impl.problem import Problem
-from .reference_impl.rotations import geodesic_angle, matrix_from_quat
-from .reference_impl.truth import truth_trajectory
+from ..adapters.base import REFERENCE_ENGINE
+from ..input.casefile import load_case
+from ..reference_impl.conventions import Trajectory, angular_velocity_body_from_world
+from ..reference_impl.integrators import INTEGRATORS, simulate
+from ..reference_impl.problem import Problem
+from ..reference_impl.rotations import geodesic_angle, matrix_from_quat
+from ..reference_impl.truth import truth_trajectory
 
 DEMOS = ("integrators", "quiz", "dzhanibekov")
 
@@ -121,7 +121,7 @@ def _write_page(path: Path, text: str) -> Path:
 
 def _rel_energy_error(problem: Problem, tr: Trajectory) -> np.ndarray:
     """|E(t) - E(0)| / KE(0), shape (N,): the energy drift relative to the initial kinetic energy."""
-    from .metrics import energies
+    from ..run.metrics import energies
 
     ke, E = energies(problem, tr)
     return np.abs(E - E[0]) / ke[0]
@@ -311,7 +311,7 @@ def quiz_closed_form(problem: Problem, h: float) -> dict:
     P2 = h F + 2 h m g;  L2 = h (r x F).  Returns those arrays (x2 (3,), R2 (3, 3), P2 (3,), L2 (3,),
     w1 (3,)) and the force, torque, mass and gravity used.
     """
-    from .reference_impl.rotations import skew
+    from ..reference_impl.rotations import skew
 
     load = problem.loads[0]
     m, g, I_inv = problem.body.mass, problem.gravity, problem.body.I_body_inv
@@ -330,7 +330,7 @@ def _angle_z(q: np.ndarray) -> float:
 def quiz_rows(problem: Problem, h: float, engines: list[str] | None, log=None) -> list[QuizRow]:
     """The quiz at t2 for the closed form, the reference schemes, every installed engine's
     integrators (missing or failing engines as rows with their status), and the truth."""
-    from .runner import RunSpec, execute, engine_integrators, select_engines
+    from ..run.runner import RunSpec, execute, engine_integrators, select_engines
 
     cf = quiz_closed_form(problem, h)
     m = cf["m"]
@@ -470,7 +470,7 @@ implement, not that they are exact.
 def dzhanibekov_runs(problem: Problem, dt: float, steps: int, engines: list[str] | None, log=None):
     """(label, trajectory or None, status message) per engine integrator, the reference's
     REFERENCE_IN_DZHANIBEKOV first; a missing or failing engine has no trajectory and says why."""
-    from .runner import RunSpec, TruthCache, engine_integrators, execute, select_engines
+    from ..run.runner import RunSpec, TruthCache, engine_integrators, execute, select_engines
 
     cache = TruthCache()
     out = []

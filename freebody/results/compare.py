@@ -5,7 +5,7 @@ Runs are matched by (case, engine, integrator, precision, dt).  A *regression* i
 - a run of the baseline missing from the current results;
 - a run whose status got worse (ok > diverged > failed; a run with a result that is now
   ``skipped`` no longer runs);
-- a metric (see :data:`freebody.compare_tolerances.COMPARED_METRICS`) worse beyond its tolerance,
+- a metric (see :data:`freebody.results.compare_tolerances.COMPARED_METRICS`) worse beyond its tolerance,
   ``current > baseline + atol + rtol |baseline|``, or now undefined, in runs of the same status.
 
 Improvements beyond the tolerance, status changes for the better and runs new in the current
@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from . import compare_tolerances as ct
-from .errors import InputError
-from .results import load_results
-from .summary import run_label
+from ..errors import InputError
+from .document import load_results
+from ..report.summary import run_label
 
 STATUS_RANK = {"ok": 3, "diverged": 2, "failed": 1}  # skipped: not measured (no rank)
 
@@ -134,7 +134,7 @@ def _unknown(where: str, dotted: str, key: str, known, kind: str = "key") -> Inp
 def resolve_tolerances(path: str | Path | None = None, rtol: float | None = None,
                        atol: float | None = None) -> dict[str, Tolerance]:
     """Per-metric tolerances.  From lowest to highest precedence: the defaults of
-    :mod:`freebody.compare_tolerances`; the file's top-level ``rtol``/``atol`` (every metric); the
+    :mod:`freebody.results.compare_tolerances`; the file's top-level ``rtol``/``atol`` (every metric); the
     command line's ``--rtol``/``--atol`` (every metric); the file's ``[metrics.NAME]`` tables.
 
     File format (TOML)::

@@ -1,6 +1,6 @@
-"""A worker process: executes runs sent by :mod:`freebody.executor`, one at a time, until told to stop.
+"""A worker process: executes runs sent by :mod:`freebody.run.executor`, one at a time, until told to stop.
 
-Started as ``python -m freebody.worker READ_FD WRITE_FD`` in its own process group (so a Ctrl-C
+Started as ``python -m freebody.run.worker READ_FD WRITE_FD`` in its own process group (so a Ctrl-C
 at the terminal reaches only the parent, which stops the workers itself).  It talks to the parent
 over two pipes with :class:`multiprocessing.connection.Connection` (pickled messages), never over
 stdin/stdout, which the engines may write to.
@@ -17,7 +17,7 @@ Messages, parent -> worker:
 Messages, worker -> parent: ``("ready", pid)`` after init; for each run ``("started", index)`` once
 its truth is ready and its engine starts, then ``("done", index, payload)`` (see :func:`finish`).
 
-Every run goes through :func:`freebody.runner.execute`, exactly as a serial run does.
+Every run goes through :func:`freebody.run.runner.execute`, exactly as a serial run does.
 """
 from __future__ import annotations
 
@@ -31,7 +31,7 @@ from typing import Callable
 
 from .runner import RunOutput, RunSpec, execute
 from .sharedcache import GroupTruthCache
-from .results import save_trajectory, trajectory_filename
+from ..results.document import save_trajectory, trajectory_filename
 
 
 @dataclass(frozen=True)
@@ -59,9 +59,9 @@ class RunTask:
 
 
 def thin_for_saving(out: RunOutput, every: int):
-    """(trajectory, truth head) thinned exactly as :func:`freebody.results.save_trajectory` thins
+    """(trajectory, truth head) thinned exactly as :func:`freebody.results.document.save_trajectory` thins
     them, so that saving these with ``every=1`` writes the same arrays."""
-    from .results import thinned_for_saving
+    from ..results.document import thinned_for_saving
 
     return thinned_for_saving(out.trajectory, out.truth, every)
 
@@ -87,7 +87,7 @@ def finish(out: RunOutput, task: RunTask) -> dict:
 
 def failed_payload(spec: RunSpec, message: str, wall_time_s: float) -> dict:
     """The payload of a run that ended without a result of its own (crash, time limit)."""
-    from .reference_impl.truth import truth_kind
+    from ..reference_impl.truth import truth_kind
     from .runner import RunResult
 
     pb = spec.problem
@@ -128,7 +128,7 @@ class Runner:
         what the oracle prints is discarded."""
         import numpy as np
 
-        from .adapters.capture import capture_output
+        from ..adapters.capture import capture_output
 
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"), capture_output():
@@ -141,8 +141,8 @@ def preimport(engines) -> None:
     """Import the adapters of the available engines among ``engines`` (their import banners are
     discarded), as the parent did while expanding the runs: so that a run's captured engine output
     does not depend on whether it was the first run of its engine in its process."""
-    from .adapters.base import is_available, load_adapter
-    from .adapters.capture import capture_output
+    from ..adapters.base import is_available, load_adapter
+    from ..adapters.capture import capture_output
 
     for name in engines:
         try:
@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     if options.get("sys_path"):
         sys.path[:] = options["sys_path"]
     if options.get("engines") is not None:
-        from .adapters import base
+        from ..adapters import base
 
         base.ENGINES.clear()
         base.ENGINES.update(options["engines"])

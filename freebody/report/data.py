@@ -11,10 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .adapters.base import REFERENCE_ENGINE
-from .reference_impl.conventions import angular_momentum, kinetic_energy, potential_energy
-from .reference_impl.problem import Body
-from .reference_impl.rotations import geodesic_angle
+from ..adapters.base import REFERENCE_ENGINE
+from ..reference_impl.conventions import angular_momentum, kinetic_energy, potential_energy
+from ..reference_impl.problem import Body
+from ..reference_impl.rotations import geodesic_angle
 from .summary import run_label
 
 STATUS_ORDER = ("failed", "diverged", "skipped", "ok")  # worst first
@@ -96,7 +96,7 @@ def status_counts(runs: list[dict]) -> dict[str, int]:
 @dataclass(frozen=True)
 class CasePhysics:
     """What a report needs of a case to compute L and E: the subset of a Problem that
-    :func:`freebody.metrics.series` reads (``body``, ``gravity``) plus its description.
+    :func:`freebody.run.metrics.series` reads (``body``, ``gravity``) plus its description.
 
     body : Body (mass kg, I_body (3, 3) kg m^2, COM, body frame).  gravity : (3,) m/s^2, world.
     """
@@ -122,7 +122,7 @@ def case_physics(doc: dict, case: str, problems: dict | None = None) -> CasePhys
     ``"cases"``, else the bundled case of that name; None when none of these knows the case."""
     if problems and case in problems:
         pb = problems[case]
-        from .reference_impl.truth import truth_kind
+        from ..reference_impl.truth import truth_kind
 
         return CasePhysics(case, pb.description, truth_kind(pb), pb.body, np.asarray(pb.gravity, float))
     rec = (doc.get("cases") or {}).get(case)
@@ -134,10 +134,10 @@ def case_physics(doc: dict, case: str, problems: dict | None = None) -> CasePhys
                 return CasePhysics(case, str(rec.get("description", "")), str(rec.get("truth", "")), body, g)
         except (KeyError, TypeError, ValueError):
             pass
-    from .casefile import bundled_case_paths, load_case
+    from ..input.casefile import bundled_case_paths, load_case
 
     if case in bundled_case_paths():
-        from .reference_impl.truth import truth_kind
+        from ..reference_impl.truth import truth_kind
 
         pb = load_case(case)
         return CasePhysics(case, pb.description, truth_kind(pb), pb.body, np.asarray(pb.gravity, float))
@@ -171,7 +171,7 @@ def _final(run: dict, out_dir: Path | None) -> dict | None:
     if isinstance(fs, dict) and fs.get("quaternion_wxyz") is not None:
         return fs
     if out_dir is not None and run.get("trajectory"):
-        from .results import load_trajectory
+        from ..results.document import load_trajectory
 
         try:
             tr, _ = load_trajectory(Path(out_dir) / run["trajectory"])
