@@ -9,7 +9,7 @@ __version__ = "0.1.0"
 
 def run_case(case, engine: str = "reference", integrator: str | None = None, dt: float | None = None,
              duration: float | None = None, precision: str = "float64"):
-    """Run one case on one engine and return a :class:`freebody.run.runner.RunOutput`
+    """Run one case on one engine and return a :class:`freebody.run.records.RunOutput`
     (trajectory arrays, truth, metrics, status).  ``case`` is a bundled case name, a path to a
     TOML file, or a :class:`freebody.reference_impl.problem.Problem`."""
     from .api import run_case as _run_case

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from .input.casefile import load_case
 from .reference_impl.problem import Problem
-from .run.runner import RunOutput, expand, select_engines
+from .run import RunOutput, expand, select_engines
 
 
 def run_case(case: str | Problem, engine: str = "reference", integrator: str | None = None,
@@ -19,7 +19,7 @@ def run_case(case: str | Problem, engine: str = "reference", integrator: str | N
     Returns a :class:`RunOutput` (``.result``, ``.trajectory``, ``.truth``, ``.series``) when the
     selection is a single run, else a list of them.
     """
-    from .run.runner import TruthCache, execute
+    from .run import TruthCache, execute
 
     problem = case if isinstance(case, Problem) else load_case(case)
     engines = select_engines([engine])

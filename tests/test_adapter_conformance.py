@@ -37,7 +37,7 @@ from freebody.adapters.capture import capture_output
 from freebody.reference_impl.conventions import Trajectory, angular_momentum, linear_momentum
 from freebody.reference_impl.problem import Body, InitialState, Load, Problem
 from freebody.reference_impl.rotations import matrix_from_quat, quat_from_rotvec
-from freebody.run.runner import PRECISIONS, RunSpec, execute
+from freebody.run import PRECISIONS, RunSpec, execute
 
 # --- tolerances ---------------------------------------------------------------------------------
 # t = 0 read-back: the state just written, through the engine's own conversions (quaternion order,

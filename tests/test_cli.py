@@ -203,7 +203,7 @@ def test_import_freebody_imports_no_engine():
     # freebody always imports; mujoco.mjx is the mjx engine's package beside its "jax" import name)
     watched = sorted({m for name, e in registry().items() if name != REFERENCE_ENGINE
                       for m in (e.import_name, e.module)} | {"mujoco.mjx"})
-    code = ("import sys, freebody, freebody.run.runner, freebody.cli, freebody.adapters.base; "
+    code = ("import sys, freebody, freebody.run, freebody.cli, freebody.adapters.base; "
             "from freebody.cli import build_parser; build_parser(); "
             f"print(sorted(m for m in {watched!r} if m in sys.modules))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

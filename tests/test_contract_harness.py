@@ -12,7 +12,7 @@ import pytest
 import test_adapter_conformance as conformance
 from fake_engines.batching_adapter import INTEGRATOR, REGISTRY_ENTRY, BatchingAdapter
 from freebody.adapters import base
-from freebody.run.runner import execute, expand
+from freebody.run import execute, expand
 from freebody.tools.sweep import SweepSettings, _batched_outputs, random_bodies, run_bodies, sweep
 
 BODIES = SweepSettings(seed=5, count=4, duration=0.2, dts=(0.01,))

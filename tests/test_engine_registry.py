@@ -6,7 +6,7 @@ import pytest
 
 from freebody.adapters import base
 from freebody.input.casefile import load_case
-from freebody.run.runner import RunSpec, execute, expand
+from freebody.run import RunSpec, execute, expand
 
 
 @pytest.fixture
@@ -39,7 +39,7 @@ def test_broken_engine_is_failed_not_skipped(fake_registry):
 
 def test_unknown_engine_name_is_bad_input():
     from freebody.errors import InputError
-    from freebody.run.runner import select_engines
+    from freebody.run import select_engines
 
     with pytest.raises(InputError, match="unknown engine 'nope'"):
         select_engines(["nope"])

@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 from freebody.input.casefile import parse_case
 from freebody.cli import main
 from freebody.errors import InputError
-from freebody.run.runner import STATUSES, RunSpec, execute
+from freebody.run import STATUSES, RunSpec, execute
 
 VALID = tomllib.loads("""
 name = "fuzz"

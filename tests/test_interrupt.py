@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from freebody.run.runner import STATUSES
+from freebody.run import STATUSES
 
 # Four runs: two of 200 steps (dt = 5 s) that finish at once, two of 1e6 steps (dt = 1e-3 s)
 # whose truth alone takes seconds, so they are still running when the signal arrives.

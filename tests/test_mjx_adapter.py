@@ -26,7 +26,7 @@ from freebody.errors import InputError  # noqa: E402
 from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
 from freebody.reference_impl.rotations import (geodesic_angle, matrix_from_quat,  # noqa: E402
                                                quat_normalize)
-from freebody.run.runner import execute, expand  # noqa: E402
+from freebody.run import execute, expand  # noqa: E402
 
 # float64 MJX Euler vs C MuJoCo Euler, the loaded case below, dt 0.01, 60 steps: the same map in
 # the same precision, different operation order; measured 3e-15 rad / 2e-16 m / 7e-15 rad/s.

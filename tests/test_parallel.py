@@ -20,7 +20,7 @@ from freebody.cli import main
 from freebody.run.executor import plan
 from freebody.reference_impl.integrators import simulate as reference_simulate
 from freebody.results.document import load_trajectory
-from freebody.run.runner import SCHEME_CANDIDATES, expand
+from freebody.run import SCHEME_CANDIDATES, expand
 from freebody.run.sharedcache import SHAREABLE_REFERENCES
 from freebody.run.suite import run_specs
 

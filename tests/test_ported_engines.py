@@ -9,7 +9,7 @@ pytest.importorskip("mujoco.mjx", reason="mujoco-mjx not installed (pip install 
 
 from freebody.input.casefile import load_case  # noqa: E402
 from freebody.report.data import port_comparison  # noqa: E402
-from freebody.run.runner import execute, expand  # noqa: E402
+from freebody.run import execute, expand  # noqa: E402
 from freebody.report.summary import summary_table  # noqa: E402
 
 MJX_F64_VS_C_RAD = 1e-9  # same map in float64 over 0.5 s at dt = 0.01: round-off only

@@ -10,7 +10,7 @@ import pytest
 from conftest import FAST_ENGINES, engine_param
 from freebody.input.casefile import bundled_case_paths, load_case, parse_case
 from freebody.cli import main
-from freebody.run.runner import RunSpec, TruthCache, execute
+from freebody.run import RunSpec, TruthCache, execute
 from freebody.tools.sweep import SweepSettings, dump_case, load_sweep, random_bodies, sweep
 
 # Every registered engine but the slow ones (mjx: its JIT compile takes about a minute per body shape).

@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("jax", reason="mjx not installed (pip install 'freebody[jax]')")
 pytest.importorskip("mujoco.mjx", reason="mujoco-mjx not installed (pip install 'freebody[jax]')")
 
-from freebody.run.runner import execute, expand  # noqa: E402
+from freebody.run import execute, expand  # noqa: E402
 from freebody.tools.sweep import SweepSettings, random_bodies, run_bodies  # noqa: E402
 
 BATCH_VS_SINGLE_REL = 1e-9  # the same compiled float64 step, vmapped: round-off only over 0.5 s

@@ -12,7 +12,7 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..adapters.base import EngineMissing, load_adapter
-    from ..run.runner import select_engines
+    from ..run import select_engines
     from ..run.selfcheck import CHECKS, run_check
 
     failed = False

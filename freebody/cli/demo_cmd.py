@@ -27,7 +27,7 @@ def run(args) -> int:
 
     from ..tools.demo import _stderr, run_demo
     from ..errors import InputError
-    from ..run.runner import select_engines
+    from ..run import select_engines
 
     names = args.names or list(DEMO_NAMES)
     for n in names:

@@ -6,7 +6,7 @@ ORDER = 20
 from pathlib import Path
 
 from ..input.casefile import bundled_case_paths, load_case
-from ..run.runner import expand, select_engines
+from ..run import expand, select_engines
 from ..run.suite import run_specs
 from ..report.summary import summary_table
 from .argtypes import positive_float as _positive_float, positive_int as _positive_int

@@ -43,7 +43,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     import math
 
-    from ..run.runner import select_engines
+    from ..run import select_engines
     from ..tools.sweep import SweepSettings, sweep
 
     if args.count < 1:

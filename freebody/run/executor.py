@@ -1,6 +1,6 @@
 """Execute runs: in this process, or in isolated worker processes, with a time limit per run.
 
-Each run is :func:`freebody.run.runner.execute` of one :class:`~freebody.run.runner.RunSpec`; the
+Each run is :func:`freebody.run.execute.execute` of one :class:`~freebody.run.records.RunSpec`; the
 executors differ only in where it happens, never in the numbers.
 
 - :func:`run_serial`: in this process, one after another (``--jobs 1``).
@@ -34,7 +34,9 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Callable
 
-from .runner import RunSpec, scheme_candidates
+from .judge import scheme_candidates
+
+from .records import RunSpec
 from .sharedcache import group_prefix
 from .worker import RunTask, Runner, failed_payload
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..adapters.base import load_adapter
 from ..reference_impl.conventions import angular_momentum
-from .runner import scheme_candidates
+from .judge import scheme_candidates
 from ..reference_impl.integrators import simulate as reference_simulate
 from ..reference_impl.problem import Body, InitialState, Load, Problem
 from ..reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply

@@ -1,7 +1,7 @@
 """Truth and reference trajectories computed once per (case, dt, steps) and shared between runs.
 
 A run needs its case's truth at its time steps; an engine run also needs the reference maps it is
-compared with (scheme identification: :data:`freebody.run.runner.SCHEME_CANDIDATES`, plus rk4).  Both
+compared with (scheme identification: :data:`freebody.run.judge.SCHEME_CANDIDATES`, plus rk4).  Both
 cost far more than most engine runs, so :class:`GroupTruthCache`
 
 - keeps them in memory for one group (problem, dt, steps) at a time, so memory stays bounded by
@@ -23,7 +23,8 @@ import numpy as np
 
 from ..reference_impl.conventions import Trajectory
 from ..results.document import write_npz_atomic
-from .runner import SCHEME_CANDIDATES, RunOutput, RunSpec, TruthCache
+from .judge import SCHEME_CANDIDATES, TruthCache
+from .records import RunOutput, RunSpec
 
 # reference maps a run of the reference engine can stand in for (identify() compares with these)
 SHAREABLE_REFERENCES = (*SCHEME_CANDIDATES, "rk4")
@@ -52,7 +53,7 @@ def _load(path: Path) -> Trajectory | None:
 
 
 class GroupTruthCache(TruthCache):
-    """A :class:`~freebody.run.runner.TruthCache` for one group at a time, optionally shared.
+    """A :class:`~freebody.run.judge.TruthCache` for one group at a time, optionally shared.
 
     store : directory shared by the workers of one suite, or None (this process only).
     Call :meth:`enter` before each run and :meth:`offer` after it.

@@ -17,7 +17,7 @@ from typing import Callable, TextIO
 from ..adapters.base import load_adapter
 from ..errors import InputError
 from ..results.document import results_document, save_trajectory, trajectory_filename, write_json_atomic
-from .runner import RunOutput, RunSpec
+from .records import RunOutput, RunSpec
 
 EXECUTORS = ("local", "dask")
 

@@ -17,7 +17,7 @@ Messages, parent -> worker:
 Messages, worker -> parent: ``("ready", pid)`` after init; for each run ``("started", index)`` once
 its truth is ready and its engine starts, then ``("done", index, payload)`` (see :func:`finish`).
 
-Every run goes through :func:`freebody.run.runner.execute`, exactly as a serial run does.
+Every run goes through :func:`freebody.run.execute.execute`, exactly as a serial run does.
 """
 from __future__ import annotations
 
@@ -29,7 +29,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
-from .runner import RunOutput, RunSpec, execute
+from .execute import execute
+
+from .records import RunOutput, RunSpec
 from .sharedcache import GroupTruthCache
 from ..results.document import save_trajectory, trajectory_filename
 
@@ -88,7 +90,7 @@ def finish(out: RunOutput, task: RunTask) -> dict:
 def failed_payload(spec: RunSpec, message: str, wall_time_s: float) -> dict:
     """The payload of a run that ended without a result of its own (crash, time limit)."""
     from ..reference_impl.truth import truth_kind
-    from .runner import RunResult
+    from .records import RunResult
 
     pb = spec.problem
     result = RunResult(case=pb.name, engine=spec.engine, integrator=spec.integrator,

@@ -330,7 +330,7 @@ def _angle_z(q: np.ndarray) -> float:
 def quiz_rows(problem: Problem, h: float, engines: list[str] | None, log=None) -> list[QuizRow]:
     """The quiz at t2 for the closed form, the reference schemes, every installed engine's
     integrators (missing or failing engines as rows with their status), and the truth."""
-    from ..run.runner import RunSpec, execute, engine_integrators, select_engines
+    from ..run import RunSpec, execute, engine_integrators, select_engines
 
     cf = quiz_closed_form(problem, h)
     m = cf["m"]
@@ -470,7 +470,7 @@ implement, not that they are exact.
 def dzhanibekov_runs(problem: Problem, dt: float, steps: int, engines: list[str] | None, log=None):
     """(label, trajectory or None, status message) per engine integrator, the reference's
     REFERENCE_IN_DZHANIBEKOV first; a missing or failing engine has no trajectory and says why."""
-    from ..run.runner import RunSpec, TruthCache, engine_integrators, execute, select_engines
+    from ..run import RunSpec, TruthCache, engine_integrators, execute, select_engines
 
     cache = TruthCache()
     out = []

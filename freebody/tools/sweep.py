@@ -41,7 +41,7 @@ from ..reference_impl.truth import truth_kind
 from ..results.document import write_json_atomic
 from ..adapters.base import is_available, load_adapter
 from ..adapters.capture import capture_output
-from ..run.runner import STATUSES, RunSpec, Simulated, TruthCache, execute, expand, finish
+from ..run import STATUSES, RunSpec, Simulated, TruthCache, execute, expand, finish
 from ..report.summary import run_label
 
 SWEEP_SCHEMA_VERSION = 1
@@ -267,7 +267,7 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
 
     Engines whose adapter steps many bodies at once (``supports_batch()``; mjx: one ``jax.vmap``-ped
     batch per integrator, precision, dt and horizon) do so; the others run body by body.  Every run is judged by
-    :func:`freebody.run.runner.finish`, so a batched run's result is that of the same run alone.
+    :func:`freebody.run.judge.finish`, so a batched run's result is that of the same run alone.
     Returns the runs as results.json ``runs`` entries (in body, dt, engine, integrator order), without
     the per-run ``engine_settings`` (reproduce a run with ``freebody run`` to see them).
     """

@@ -1,0 +1,147 @@
+"""The run matrix: the engines, integrators, precisions and time steps selected on the command
+line, expanded into one :class:`~freebody.run.records.RunSpec` per run."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..adapters.base import UnknownEngine, engine_names, is_available, load_adapter, resolve_engine
+from ..adapters.capture import capture_output
+from ..errors import InputError
+from ..reference_impl.problem import Problem
+from .records import PRECISIONS, RunSpec
+
+
+def select_engines(requested: list[str] | None) -> list[str]:
+    """Requested engines (validated, case-insensitive), or every registered engine."""
+    if not requested:
+        return engine_names()
+    try:
+        out = []
+        for name in requested:
+            e = resolve_engine(name)
+            if e not in out:
+                out.append(e)
+        return out
+    except UnknownEngine as e:
+        raise InputError(f"--engine: {e.args[0]}") from None
+
+
+def engine_integrators(engine: str) -> tuple[str, ...] | None:
+    """Integrators the installed engine offers (default first), or None if it is not installed or
+    its adapter fails to load (its runs then record skipped or failed, with the reason)."""
+    if not is_available(engine):
+        return None
+    try:
+        with capture_output():  # some engines print a banner on import (pybullet)
+            return load_adapter(engine).offered_integrators()
+    except Exception:
+        return None
+
+
+def engine_precisions(engine: str) -> tuple[str, ...] | None:
+    """Precisions the installed engine offers (``Adapter.precisions``), or None if it is not
+    installed or its adapter fails to load."""
+    if not is_available(engine):
+        return None
+    try:
+        with capture_output():
+            return tuple(load_adapter(engine).precisions)
+    except Exception:
+        return None
+
+
+def select_precisions(offered: dict[str, tuple[str, ...] | None],
+                      requested: list[str] | None) -> dict[str, list[str]]:
+    """Apply ``--precision`` selections to every engine: engine -> its precisions to run.
+
+    None: every precision each engine offers.  Otherwise an engine runs the requested ones it
+    offers and is left out of the matrix when it offers none; a requested precision that no
+    selected engine offers is bad input.  An engine that is not installed (offered None) keeps one
+    run (float64, or the first requested), to be recorded as skipped.
+    """
+    if requested:
+        for p in requested:
+            if p not in PRECISIONS:
+                raise InputError(f"--precision: unknown precision {p!r}; known: {', '.join(PRECISIONS)}")
+        known = {e: o for e, o in offered.items() if o is not None}
+        if len(known) == len(offered):
+            for p in requested:
+                if not any(p in o for o in known.values()):
+                    have = "; ".join(f"{e}: {', '.join(o)}" for e, o in known.items())
+                    raise InputError(f"--precision: no selected engine offers {p} ({have})")
+    out = {}
+    for engine, o in offered.items():
+        if o is None:
+            out[engine] = ["float64" if not requested or "float64" in requested else requested[0]]
+        elif requested:
+            out[engine] = [p for p in o if p in requested]
+        else:
+            out[engine] = list(o)
+    return out
+
+
+def select_integrators(engine: str, offered: tuple[str, ...], requested: list[str] | None) -> list[str]:
+    """Apply ``--integrator`` selections: NAME applies to every engine, ENGINE:NAME to one engine.
+
+    An engine to which no selection applies runs all its integrators; one to which selections
+    apply but which offers none of them is bad input (the message lists what it offers).
+    """
+    names = []
+    for item in requested or []:
+        eng, sep, name = item.partition(":")
+        if not sep:
+            names.append(item)
+            continue
+        try:
+            target = resolve_engine(eng)
+        except UnknownEngine:
+            raise InputError(f"--integrator: unknown engine {eng!r} in {item!r}; "
+                             f"known engines: {', '.join(engine_names())}") from None
+        if target == engine:
+            if not any(o.lower() == name.lower() for o in offered):
+                raise InputError(f"--integrator: {engine} has no integrator {name!r}; "
+                                 f"it offers: {', '.join(offered)}")
+            names.append(name)
+    if not names:
+        return list(offered)
+    chosen = [o for o in offered if any(o.lower() == n.lower() for n in names)]
+    if not chosen:
+        raise InputError(f"--integrator: {engine} offers none of {', '.join(repr(n) for n in names)}; "
+                         f"it offers: {', '.join(offered)}")
+    return chosen
+
+
+def expand(problems: list[Problem], engines: list[str], integrators: list[str] | None,
+           dts: list[float] | None, duration: float | None,
+           precisions: list[str] | None = None) -> list[RunSpec]:
+    """Every run of the matrix, in a stable order (case, dt, engine, integrator, precision).
+
+    precisions : None for every precision each engine offers (``Adapter.precisions``), else the
+    ones to run (see :func:`select_precisions`)."""
+    if dts is not None:
+        for d in dts:
+            if not (np.isfinite(d) and d > 0):
+                raise InputError(f"--dt: must be a finite number > 0, got {d}")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise InputError(f"--duration: must be a finite number > 0, got {duration}")
+    per_engine: dict[str, list[str]] = {}
+    for engine in engines:
+        offered = engine_integrators(engine)
+        if offered is None:
+            per_engine[engine] = ["*"]
+        else:
+            per_engine[engine] = select_integrators(engine, offered, integrators)
+    per_precision = select_precisions({e: engine_precisions(e) for e in engines}, precisions)
+    specs = []
+    for pb in problems:
+        for d in (dts or pb.dts):
+            if duration is not None and duration < d:
+                raise InputError(f"--duration: {duration} s is shorter than dt = {d} s")
+            if duration is None and pb.duration is not None and pb.duration < d * (1 - 1e-12):
+                raise InputError(f"--dt: {d} s is longer than case {pb.name}'s duration ({pb.duration} s)")
+            steps = pb.steps(d, duration)
+            for engine in engines:
+                for integ in per_engine[engine]:
+                    for prec in per_precision[engine]:
+                        specs.append(RunSpec(pb, engine, integ, float(d), steps, prec))
+    return specs

@@ -1,0 +1,132 @@
+"""The records of a run: what to run (:class:`RunSpec`), what an engine produced
+(:class:`Simulated`), and the judged outcome (:class:`RunResult`, serialised as a ``runs`` entry of
+results.json, and :class:`RunOutput` with its arrays).
+
+A run's status is data, one of :data:`STATUSES`:
+- ``ok``: the engine ran to the end and stayed within the case's bounds;
+- ``diverged``: non-finite state, beyond the bounds (see :func:`freebody.run.metrics.divergence`), or the
+  engine's own instability warning; ``diverged_at_s`` says when;
+- ``failed``: the engine (or its adapter) raised; the message says what;
+- ``skipped``: the engine is not installed; the message says how to install it.
+"""
+from __future__ import annotations
+
+import traceback
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..adapters.base import REFERENCE_ENGINE
+from ..reference_impl.conventions import Trajectory
+from ..reference_impl.problem import Problem
+from ..reference_impl.truth import truth_kind
+from .metrics import Series
+
+STATUSES = ("ok", "diverged", "failed", "skipped")
+PRECISIONS = ("float32", "float64")  # floating-point precisions an engine may offer
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run to execute.  ``problem`` is the validated case; ``integrator`` is spelt as the engine
+    spells it ("*" for an engine that is not installed)."""
+
+    problem: Problem
+    engine: str
+    integrator: str
+    dt: float
+    steps: int
+    precision: str = "float64"
+
+    @property
+    def is_reference(self) -> bool:
+        """Whether this run is one of freebody's own reference maps (the registry's reference
+        engine): shared with scheme identification, never identified itself."""
+        return self.engine == REFERENCE_ENGINE
+
+    @property
+    def key(self) -> tuple:
+        """A run's identity: (case, engine, integrator, precision, dt)."""
+        return (self.problem.name, self.engine, self.integrator, self.precision, self.dt)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """The outcome of one run: the serialised form is a ``runs`` entry of results.json."""
+
+    case: str
+    engine: str
+    integrator: str
+    precision: str
+    dt: float
+    steps: int
+    status: str
+    message: str
+    truth: str
+    metrics: dict
+    final_state: dict | None
+    wall_time_s: float
+    engine_version: str | None = None
+    engine_settings: dict = field(default_factory=dict)
+    matches_reference: dict | None = None
+    diverged_at_s: float | None = None
+    trajectory: str | None = None
+    engine_output: list = field(default_factory=list)
+    vs_engine: dict | None = None
+    # s spent compiling the engine's step (JIT engines, e.g. mjx; 0 when cached; None: no JIT),
+    # included in wall_time_s
+    compile_time_s: float | None = None
+
+    def to_json(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class RunOutput:
+    """A run's result with its arrays (for the Python API, trajectory files and reports)."""
+
+    result: RunResult
+    trajectory: Trajectory | None
+    truth: Trajectory | None
+    series: Series | None
+
+
+@dataclass(frozen=True)
+class Simulated:
+    """What an engine produced for one run, before it is judged against the truth.
+
+    trajectory : the canonical samples (up to the blow-up when the engine reported one).
+    diverged_at : s, when the engine itself reported an instability, else None.
+    """
+
+    trajectory: Trajectory | None
+    diverged_at: float | None
+    reason: str
+    version: str | None
+    settings: dict | None
+    wall_time_s: float
+    compile_time_s: float | None = None
+
+
+def _identity(spec: RunSpec) -> dict:
+    """The fields of a RunResult that say which run it is."""
+    return dict(case=spec.problem.name, engine=spec.engine, integrator=spec.integrator,
+                precision=spec.precision, dt=spec.dt, steps=spec.steps, truth=truth_kind(spec.problem))
+
+
+def _clean(metrics: dict) -> dict:
+    return {k: (None if v is None or not np.isfinite(v) else float(v)) for k, v in metrics.items()}
+
+
+def _describe(e: BaseException) -> str:
+    msg = str(e).strip().splitlines()
+    where = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
+    loc = f" (at {where.filename.rsplit('/', 1)[-1]}:{where.lineno})" if where else ""
+    return f"{type(e).__name__}: {msg[0] if msg else ''}{loc}"
+
+
+def _no_trajectory(base, status, message, wall, version=None, settings=None, diverged_at=None) -> RunOutput:
+    result = RunResult(**base, status=status, message=message, metrics={}, final_state=None,
+                       wall_time_s=wall, engine_version=version, engine_settings=settings or {},
+                       diverged_at_s=diverged_at)
+    return RunOutput(result, None, None, None)
