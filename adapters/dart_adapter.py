@@ -38,10 +38,8 @@ DART's conventions and what this adapter converts:
 """
 from __future__ import annotations
 
-import os
 import re
 import sys
-import tempfile
 from typing import Callable, ClassVar
 
 import dartpy
@@ -49,13 +47,11 @@ import numpy as np
 
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.rotations import matrix_from_quat, quat_from_rotvec
+from ..tolerances import DART_FRAME_PROBE_ATOL, DART_READBACK_RTOL
 from .base import Adapter, EngineDiverged
+from .capture import FdCapture
 
 _WORLD = dartpy.dynamics.Frame.World()
-
-# Read-back checks of the built model: relative tolerance for the values the adapter wrote
-# (mass, inertia, pose, velocities, gravity, time step), all copied or converted in float64.
-_READBACK_RTOL = 1e-9
 
 # advance() checks the recorded coordinates for divergence every this many steps
 # (a vectorised check; a diverged run overshoots by at most this many steps of DART warnings).
@@ -67,54 +63,9 @@ _MAX_REASON_LINES = 3
 _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
-class _Fd2Capture:
-    """Redirect file descriptor 2 (the C/C++ stderr) to a temporary file while in the block.
-
-    fd 2 is restored on exit, even on exceptions.  ``has_output()`` is one ``fstat``; after exit
-    ``lines`` holds the captured lines (ANSI colour codes stripped).
-    """
-
-    def __init__(self):
-        self.lines: list[str] = []
-        self._tmp = None
-        self._saved = -1
-
-    def __enter__(self) -> "_Fd2Capture":
-        try:
-            sys.stderr.flush()
-        except (AttributeError, ValueError):
-            pass
-        self._tmp = tempfile.TemporaryFile(mode="w+b")
-        self._saved = os.dup(2)
-        try:
-            os.dup2(self._tmp.fileno(), 2)
-        except BaseException:
-            os.close(self._saved)
-            self._tmp.close()
-            raise
-        return self
-
-    def has_output(self) -> bool:
-        return os.fstat(self._tmp.fileno()).st_size > 0
-
-    def read_lines(self) -> list[str]:
-        """The text written so far, one entry per non-empty line, ANSI colour codes removed."""
-        fd = self._tmp.fileno()
-        size = os.fstat(fd).st_size
-        if size == 0:
-            return []
-        text = os.pread(fd, size, 0).decode("utf-8", "replace")
-        return [ln for ln in (_ANSI.sub("", s).strip() for s in text.splitlines()) if ln]
-
-    def __exit__(self, *exc) -> None:
-        try:
-            os.dup2(self._saved, 2)
-        finally:
-            os.close(self._saved)
-            try:
-                self.lines = self.read_lines()
-            finally:
-                self._tmp.close()
+def _dart_lines(lines: list[str]) -> list[str]:
+    """Captured stderr lines as DART's messages: ANSI colour codes removed, stripped, blank ones dropped."""
+    return [ln for ln in (_ANSI.sub("", s).strip() for s in lines) if ln]
 
 
 def _is_dart_instability(lines: list[str]) -> bool:
@@ -153,7 +104,7 @@ def _coordinate_frames() -> str:
     joint.setLinearVelocity(v, _WORLD, _WORLD)
     joint.setAngularVelocity(w, _WORLD, _WORLD)
     pos, vel = np.asarray(skel.getPositions()), np.asarray(skel.getVelocities())
-    tol = 1e-12
+    tol = DART_FRAME_PROBE_ATOL
     pos_ok = (np.abs(matrix_from_quat(quat_from_rotvec(pos[:3])) - R).max() < tol
               and np.abs(pos[3:] - x).max() < tol)
     if pos_ok and np.abs(vel - np.r_[w, v]).max() < tol:
@@ -273,7 +224,7 @@ class DartAdapter(Adapter):
         k0 = self.k
         checked = 0  # rows 0..checked have been checked
         diverged: tuple[int, str] | None = None
-        with _Fd2Capture() as cap:
+        with FdCapture((2,)) as cap:
             for seg, ka, kb in self.loads.stretches(k0, k0 + steps):
                 calls = self._calls[seg.k0]
                 for i in range(ka - k0, kb - k0):
@@ -285,7 +236,7 @@ class DartAdapter(Adapter):
                     if (i + 1) % _CHECK_EVERY == 0 or i + 1 == steps:
                         diverged = _first_bad_row(P, V, checked, i + 1)
                         if diverged is None and cap.has_output():
-                            if _is_dart_instability(cap.read_lines()):
+                            if _is_dart_instability(_dart_lines(cap.read_lines())):
                                 diverged = (i + 1, "DART reported non-finite values")
                         checked = i + 1
                         if diverged is not None:
@@ -295,10 +246,11 @@ class DartAdapter(Adapter):
         n = (diverged[0] + 1) if diverged is not None else steps + 1
         self.k = k0 + n - 1
         out = self._trajectory(P[:n], V[:n], k0)
+        lines = _dart_lines(cap.lines)
         if diverged is not None:
-            raise EngineDiverged(self.k * self.dt, diverged[1] + _reason_lines(cap.lines), out)
-        if cap.lines:  # unexpected output that was no instability: do not hide it
-            sys.stderr.write("\n".join(cap.lines) + "\n")
+            raise EngineDiverged(self.k * self.dt, diverged[1] + _reason_lines(lines), out)
+        if lines:  # unexpected output that was no instability: do not hide it
+            sys.stderr.write("\n".join(lines) + "\n")
         return out
 
     def bare_loop(self, steps: int) -> Callable[[], object]:
@@ -342,7 +294,7 @@ def _check(what: str, got, want) -> None:
     got = np.asarray(got, dtype=float)
     want = np.asarray(want, dtype=float)
     scale = max(1.0, float(np.abs(want).max(initial=0.0)))
-    if got.shape != want.shape or not np.all(np.abs(got - want) <= _READBACK_RTOL * scale):
+    if got.shape != want.shape or not np.all(np.abs(got - want) <= DART_READBACK_RTOL * scale):
         raise RuntimeError(f"dart: {what} read back as {got.tolist()}, set {want.tolist()}")
 
 

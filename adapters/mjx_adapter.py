@@ -336,25 +336,25 @@ class MjxAdapter(Adapter):
         V = np.empty((steps + 1, 6))   # [v (3) m/s world, w (3) rad/s BODY]
         Q[0] = np.asarray(self._d.qpos, dtype=np.float64)
         V[0] = np.asarray(self._d.qvel, dtype=np.float64)
-        m, d = self._m, self._d
+        model, data = self._m, self._d
         with _x64(self.precision == "float64"):
             i = 0
             while i < steps:
                 n = min(CHUNK_STEPS, steps - i)
                 rows = np.zeros((CHUNK_STEPS, _ROW), dtype=dtype)
                 rows[:n] = _load_rows(self.loads, k0 + i, k0 + i + n, dtype)
-                args = (m, d, jnp.asarray(rows), jnp.int32(n))
+                args = (model, data, jnp.asarray(rows), jnp.int32(n))
                 fn, spent = _compiled("chunk", _chunk_jit, self.precision, args)
                 self.compile_time_s += spent
                 t0 = time.perf_counter()
-                d, Qc, Vc = fn(*args)  # d: the Data after the chunk's last real step
+                data, Qc, Vc = fn(*args)  # the Data after the chunk's last real step
                 Qc, Vc = np.asarray(Qc), np.asarray(Vc)
                 self.step_time_s += time.perf_counter() - t0
                 if Qc.dtype != dtype:
                     raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {self.precision}")
                 Q[i + 1:i + 1 + n], V[i + 1:i + 1 + n] = Qc[:n], Vc[:n]
                 i += n
-        self._d = d
+        self._d = data
         self.k = k0 + steps
         return _trajectory(Q, V, self.dt, k0)
 
@@ -373,64 +373,87 @@ class MjxAdapter(Adapter):
             dt : s, shared.  steps : number of steps, shared.
         integrator, precision : as for :class:`MjxAdapter`.
         Each body's trajectory is what :meth:`simulate` gives for it alone up to round-off (the
-        same step, vmapped: not bit for bit, see the module docstring).  A body that blows up does not stop the batch: its samples turn
-        non-finite and ``diverged_at_s`` says when.
+        same step, vmapped: not bit for bit, see the module docstring).  A body that blows up
+        does not stop the batch: its samples turn non-finite and ``diverged_at_s`` says when.
         """
-        if integrator not in cls.offered_integrators():  # (Adapter.__init__ checks single runs)
-            raise UnsupportedOption(f"{cls.name} {cls.engine_version()} has no integrator "
-                                    f"{integrator!r}; offered: {', '.join(cls.offered_integrators())}")
-        if precision not in cls.precisions:
-            raise UnsupportedOption(f"{cls.name} offers the precisions {', '.join(cls.precisions)}, "
-                                    f"not {precision!r}")
+        cls._check_batch_options(integrator, precision)
         if not problems:
             return BatchRun([], [], 0.0, 0.0, [])
-        dtype = _DTYPE[precision]
         x64_default = _current_x64()
-        schedules = [LoadSchedule(pb, dt) for pb in problems]
+        schedules = [LoadSchedule(problem, dt) for problem in problems]
         with _x64(precision == "float64"):
-            built = [_build(pb, dt, integrator, precision, x64_default) for pb in problems]
-            m, m_axes = _stack_models([b[0] for b in built])
-            d = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[b[1] for b in built])
-            # the model's static structure (integrator, diagonal inertia, ...) and which leaves
-            # vary across the batch: a compiled batch fits only models that agree on both
-            axes_key = (jax.tree_util.tree_structure(m), tuple(
-                a is None for a in jax.tree_util.tree_leaves(m_axes, is_leaf=lambda x: x is None)))
-            fn_jit = _BATCH_JIT.get(axes_key)
-            if fn_jit is None:
-                fn_jit = _BATCH_JIT[axes_key] = jax.jit(
-                    jax.vmap(_chunk, in_axes=(m_axes, 0, 0, None)))
-            B = len(problems)
-            Q = np.empty((B, steps + 1, 7))
-            V = np.empty((B, steps + 1, 6))
-            Q[:, 0] = np.asarray(d.qpos, dtype=np.float64)
-            V[:, 0] = np.asarray(d.qvel, dtype=np.float64)
-            compile_s = step_s = 0.0
-            k = 0
-            while k < steps:
-                n = min(CHUNK_STEPS, steps - k)
-                rows = np.zeros((B, CHUNK_STEPS, _ROW), dtype=dtype)
-                for i, loads in enumerate(schedules):
-                    rows[i, :n] = _load_rows(loads, k, k + n, dtype)
-                args = (m, d, jnp.asarray(rows), jnp.int32(n))
-                fn, spent = _compiled("batch", fn_jit, precision, args, extra=axes_key)
-                compile_s += spent
-                t0 = time.perf_counter()
-                d, Qc, Vc = fn(*args)
-                Qc, Vc = np.asarray(Qc), np.asarray(Vc)
-                step_s += time.perf_counter() - t0
-                if Qc.dtype != dtype:
-                    raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {precision}")
-                Q[:, k + 1:k + 1 + n], V[:, k + 1:k + 1 + n] = Qc[:, :n], Vc[:, :n]
-                k += n
+            built = [_build(problem, dt, integrator, precision, x64_default)
+                     for problem in problems]
+            model, model_axes = _stack_models([b[0] for b in built])
+            data = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[b[1] for b in built])
+            fn_jit, axes_key = _batch_jit(model, model_axes)
+            Q, V, compile_s, step_s = _run_batch_chunks(fn_jit, axes_key, model, data, schedules,
+                                                        steps, precision)
         trajectories, diverged = [], []
-        for i in range(B):
+        for i in range(len(problems)):
             bad = _first_bad(Q[i], V[i])
             diverged.append(None if bad is None else bad * dt)
             trajectories.append(_trajectory(Q[i], V[i], dt))
         return BatchRun(trajectories, diverged, compile_s, step_s, [b[2] for b in built])
 
+    @classmethod
+    def _check_batch_options(cls, integrator: str, precision: str) -> None:
+        """UnsupportedOption for an integrator or precision this MJX does not offer
+        (Adapter.__init__ checks single runs)."""
+        if integrator not in cls.offered_integrators():
+            raise UnsupportedOption(f"{cls.name} {cls.engine_version()} has no integrator "
+                                    f"{integrator!r}; offered: {', '.join(cls.offered_integrators())}")
+        if precision not in cls.precisions:
+            raise UnsupportedOption(f"{cls.name} offers the precisions {', '.join(cls.precisions)}, "
+                                    f"not {precision!r}")
+
 
 # --- batched runs: helpers ------------------------------------------------------------------------
+
+def _batch_jit(model, model_axes):
+    """(jit(vmap(_chunk)) for the stacked model, its cache key).  The key is the model's static
+    structure (integrator, diagonal inertia, ...) and which leaves vary across the batch: a
+    compiled batch fits only models that agree on both."""
+    axes_key = (jax.tree_util.tree_structure(model), tuple(
+        a is None for a in jax.tree_util.tree_leaves(model_axes, is_leaf=lambda x: x is None)))
+    fn_jit = _BATCH_JIT.get(axes_key)
+    if fn_jit is None:
+        fn_jit = _BATCH_JIT[axes_key] = jax.jit(
+            jax.vmap(_chunk, in_axes=(model_axes, 0, 0, None)))
+    return fn_jit, axes_key
+
+
+def _run_batch_chunks(fn_jit, axes_key, model, data, schedules: list[LoadSchedule], steps: int,
+                      precision: str):
+    """``steps`` steps of the stacked batch in compiled chunks of CHUNK_STEPS, inside the
+    caller's x64 scope.  Returns (qpos (B, steps + 1, 7), qvel (B, steps + 1, 6) as float64,
+    seconds compiling, seconds stepping)."""
+    dtype = _DTYPE[precision]
+    B = len(schedules)
+    Q = np.empty((B, steps + 1, 7))
+    V = np.empty((B, steps + 1, 6))
+    Q[:, 0] = np.asarray(data.qpos, dtype=np.float64)
+    V[:, 0] = np.asarray(data.qvel, dtype=np.float64)
+    compile_s = step_s = 0.0
+    k = 0
+    while k < steps:
+        n = min(CHUNK_STEPS, steps - k)
+        rows = np.zeros((B, CHUNK_STEPS, _ROW), dtype=dtype)
+        for i, loads in enumerate(schedules):
+            rows[i, :n] = _load_rows(loads, k, k + n, dtype)
+        args = (model, data, jnp.asarray(rows), jnp.int32(n))
+        fn, spent = _compiled("batch", fn_jit, precision, args, extra=axes_key)
+        compile_s += spent
+        t0 = time.perf_counter()
+        data, Qc, Vc = fn(*args)
+        Qc, Vc = np.asarray(Qc), np.asarray(Vc)
+        step_s += time.perf_counter() - t0
+        if Qc.dtype != dtype:
+            raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {precision}")
+        Q[:, k + 1:k + 1 + n], V[:, k + 1:k + 1 + n] = Qc[:, :n], Vc[:, :n]
+        k += n
+    return Q, V, compile_s, step_s
+
 
 def _stack_models(models):
     """(stacked model, in_axes tree): leaves equal across the batch stay unbatched (None)."""

@@ -51,6 +51,7 @@ except ImportError:  # pragma: no cover - MuJoCo < 3.1
 
 from ..reference_impl.conventions import (Trajectory, angular_velocity_body_from_world,
                                           angular_velocity_world_from_body)
+from ..tolerances import MUJOCO_PRINCIPAL_AXES_ATOL, MUJOCO_TRIANGLE_ROUNDOFF
 from ..reference_impl.rotations import matrix_from_quat, quat_from_matrix
 from .base import Adapter, EngineDiverged
 from .loads import Segment
@@ -67,11 +68,6 @@ _INTEGRATOR_ENUM: dict[str, str] = {
 # MuJoCo's instability warnings (data.warning counters) that end a run.
 _WATCHED_WARNINGS: tuple[str, ...] = ("mjWARN_BADQACC", "mjWARN_BADQVEL", "mjWARN_BADQPOS",
                                       "mjWARN_INERTIA")
-
-# A flat body (A + B = C exactly, e.g. diag(1, 2, 3)) with off-diagonal terms fails MuJoCo's
-# "A + B >= C" check about a third of the time through round-off in the diagonalisation; such a
-# violation up to this fraction of C is treated as round-off (see _inertial_element).
-_TRIANGLE_ROUNDOFF = 1e-12
 
 _BODY = 1  # body id of the free body (0 is the world)
 
@@ -135,77 +131,94 @@ class MujocoAdapter(Adapter):
 
     # --- world ---------------------------------------------------------------------------------
     def build(self) -> None:
-        problem = self.problem
+        """Compile the one-body model, set and read back its options, write the initial state and
+        prepare advance()'s views and buffers."""
         defaults = mujoco.MjModel.from_xml_string("<mujoco/>").opt
+        model = self._compile_model()
+        self._set_options(model, defaults)
+        data = mujoco.MjData(model)
+        init = self.problem.initial
+        data.qpos[0:3] = init.position
+        data.qpos[3:7] = init.quaternion_wxyz
+        data.qvel[0:3] = init.linear_velocity
+        data.qvel[3:6] = angular_velocity_body_from_world(init.quaternion_wxyz,
+                                                          init.angular_velocity)
+        mujoco.mj_forward(model, data)
+        self.model, self.data = model, data
+        self._prepare_advance(model, data)
 
+    def _compile_model(self) -> mujoco.MjModel:
+        """The model of one free body (alignfree off, recorded), checked to keep the XML body
+        frame and to have no damping, armature, friction loss, sleeping or fluid forces."""
+        body = self.problem.body
         align = _alignfree_default()
         compiler = '<compiler alignfree="false"/>' if align is not None else ""
         xml = (f'<mujoco model="freebody">{compiler}<worldbody>'
                f'<body name="body" pos="0 0 0" quat="1 0 0 0"><freejoint name="free"/>'
-               f'{_inertial_element(problem.body.mass, problem.body.I_body)}'
+               f'{_inertial_element(body.mass, body.I_body)}'
                f'</body></worldbody></mujoco>')
-        m = mujoco.MjModel.from_xml_string(xml)
+        model = mujoco.MjModel.from_xml_string(xml)
         if align is not None:
             self.record_setting("compiler.alignfree", align, False)
-        if not (np.array_equal(m.body_pos[_BODY], np.zeros(3))
-                and np.array_equal(m.body_quat[_BODY], [1.0, 0.0, 0.0, 0.0])
-                and np.array_equal(m.body_ipos[_BODY], np.zeros(3))):
+        if not (np.array_equal(model.body_pos[_BODY], np.zeros(3))
+                and np.array_equal(model.body_quat[_BODY], [1.0, 0.0, 0.0, 0.0])
+                and np.array_equal(model.body_ipos[_BODY], np.zeros(3))):
             raise RuntimeError("mujoco moved the body frame (free-joint alignment?): "
-                               f"body_pos {m.body_pos[_BODY]}, body_quat {m.body_quat[_BODY]}, "
-                               f"body_ipos {m.body_ipos[_BODY]}; qpos would not be the body frame")
+                               f"body_pos {model.body_pos[_BODY]}, "
+                               f"body_quat {model.body_quat[_BODY]}, body_ipos "
+                               f"{model.body_ipos[_BODY]}; qpos would not be the body frame")
         for field in ("dof_damping", "dof_armature", "dof_frictionloss"):
-            if np.any(getattr(m, field)):
-                raise RuntimeError(f"mujoco model has non-zero {field}: {getattr(m, field)}")
-        if m.opt.enableflags & int(getattr(mujoco.mjtEnableBit, "mjENBL_SLEEP", 0)):
+            if np.any(getattr(model, field)):
+                raise RuntimeError(f"mujoco model has non-zero {field}: {getattr(model, field)}")
+        if model.opt.enableflags & int(getattr(mujoco.mjtEnableBit, "mjENBL_SLEEP", 0)):
             raise RuntimeError("mujoco sleeping is enabled by default in this version")
-        if m.opt.density != 0.0 or m.opt.viscosity != 0.0:
+        if model.opt.density != 0.0 or model.opt.viscosity != 0.0:
             raise RuntimeError("mujoco fluid forces are on by default in this version")
+        return model
 
-        m.opt.timestep = self.dt
-        _check("timestep", m.opt.timestep, self.dt)
-        self.record_setting("timestep", defaults.timestep, float(m.opt.timestep))
-        m.opt.gravity[:] = problem.gravity
-        _check("gravity", m.opt.gravity, problem.gravity)
-        self.record_setting("gravity", defaults.gravity.copy(), m.opt.gravity.copy())
+    def _set_options(self, model: mujoco.MjModel, defaults) -> None:
+        """Time step, gravity, integrator and (where MuJoCo has it) the auto-reset disabled, each
+        read back and recorded against ``defaults`` (the mjOption of an empty model)."""
+        opt = model.opt
+        opt.timestep = self.dt
+        _check("timestep", opt.timestep, self.dt)
+        self.record_setting("timestep", defaults.timestep, float(opt.timestep))
+        opt.gravity[:] = self.problem.gravity
+        _check("gravity", opt.gravity, self.problem.gravity)
+        self.record_setting("gravity", defaults.gravity.copy(), opt.gravity.copy())
         enum = getattr(mujoco.mjtIntegrator, _INTEGRATOR_ENUM[self.integrator])
-        m.opt.integrator = int(enum)
-        _check("integrator", m.opt.integrator, int(enum))
+        opt.integrator = int(enum)
+        _check("integrator", opt.integrator, int(enum))
         self.record_setting("integrator", _integrator_name(defaults.integrator),
-                            _integrator_name(m.opt.integrator))
+                            _integrator_name(opt.integrator))
         autoreset = getattr(mujoco.mjtDisableBit, "mjDSBL_AUTORESET", None)
         if autoreset is not None:
-            before = not (m.opt.disableflags & int(autoreset))
-            m.opt.disableflags |= int(autoreset)
-            _check("auto-reset disabled", bool(m.opt.disableflags & int(autoreset)), True)
+            before = not (opt.disableflags & int(autoreset))
+            opt.disableflags |= int(autoreset)
+            _check("auto-reset disabled", bool(opt.disableflags & int(autoreset)), True)
             self.record_setting("autoreset", before, False)
 
-        d = mujoco.MjData(m)
-        init = problem.initial
-        d.qpos[0:3] = init.position
-        d.qpos[3:7] = init.quaternion_wxyz
-        d.qvel[0:3] = init.linear_velocity
-        d.qvel[3:6] = angular_velocity_body_from_world(init.quaternion_wxyz, init.angular_velocity)
-        mujoco.mj_forward(m, d)
-        self.model, self.data = m, d
-
-        self._warnings = [d.warning[int(getattr(mujoco.mjtWarning, w))] for w in _WATCHED_WARNINGS]
+    def _prepare_advance(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """The warning counters, state-row layout, checkpoint buffer and views advance() uses."""
+        self._warnings = [data.warning[int(getattr(mujoco.mjtWarning, w))]
+                          for w in _WATCHED_WARNINGS]
         self._warning_counts = [w.number for w in self._warnings]
-        self._all_warnings = [d.warning[i] for i in range(int(mujoco.mjtWarning.mjNWARNING))]
+        self._all_warnings = [data.warning[i] for i in range(int(mujoco.mjtWarning.mjNWARNING))]
         # Layout of an mjSTATE_FULLPHYSICS row (time, qpos, qvel, ...): rollout's output rows.
-        self._nstate = mujoco.mj_stateSize(m, _FULLPHYSICS)
-        n_time = mujoco.mj_stateSize(m, int(mujoco.mjtState.mjSTATE_TIME))
+        self._nstate = mujoco.mj_stateSize(model, _FULLPHYSICS)
+        n_time = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_TIME))
         n_time_qpos = mujoco.mj_stateSize(
-            m, int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS))
+            model, int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS))
         self._qpos_cols = slice(n_time, n_time_qpos)                  # 7 columns
-        self._qvel_cols = slice(n_time_qpos, n_time_qpos + m.nv)      # 6 columns
-        self._checkpoint = np.empty(mujoco.mj_stateSize(m, _CHECKPOINT_SPEC))
+        self._qvel_cols = slice(n_time_qpos, n_time_qpos + model.nv)  # 6 columns
+        self._checkpoint = np.empty(mujoco.mj_stateSize(model, _CHECKPOINT_SPEC))
         self._roller = None  # mujoco.rollout.Rollout, made on first use
-        self._xfrc = d.xfrc_applied[_BODY]  # (6,) view: force (3,) N world, torque (3,) N m world
-        self._torque = self._xfrc[3:6]      # (3,) view: torque about the COM, N m, world
-        self._x = d.qpos[0:3]               # (3,) view: COM position, m, world
-        self._q = d.qpos[3:7]               # (4,) view: quaternion wxyz, body -> world
-        self._arm = np.empty(3)             # scratch (3,)
-        self._term = np.empty(3)            # scratch (3,)
+        self._xfrc = data.xfrc_applied[_BODY]  # (6,) view: force (3,) N, torque (3,) N m, world
+        self._torque = self._xfrc[3:6]         # (3,) view: torque about the COM, N m, world
+        self._x = data.qpos[0:3]               # (3,) view: COM position, m, world
+        self._q = data.qpos[3:7]               # (4,) view: quaternion wxyz, body -> world
+        self._arm = np.empty(3)                # scratch (3,)
+        self._term = np.empty(3)               # scratch (3,)
 
     # --- loads -----------------------------------------------------------------------------------
     def _write_wrench(self, seg: Segment) -> None:
@@ -257,10 +270,10 @@ class MujocoAdapter(Adapter):
         the trajectory up to and including that step's sample).
         """
         k0 = self.k
-        d = self.data
+        data = self.data
         S = np.empty((steps + 1, self._nstate))  # row i: state at t = (k0 + i) dt
         Q, V = S[:, self._qpos_cols], S[:, self._qvel_cols]  # (steps + 1, 7), (steps + 1, 6) views
-        Q[0], V[0] = d.qpos, d.qvel
+        Q[0], V[0] = data.qpos, data.qvel
         for seg, ka, kb in self.loads.stretches(k0, k0 + steps):
             self._write_wrench(seg)
             if (not seg.state_dependent and kb - ka >= _ROLLOUT_MIN_STEPS
@@ -281,17 +294,17 @@ class MujocoAdapter(Adapter):
         """n steps by a Python loop over mj_step into rows i0 + 1 .. i0 + n of Q (N, 7) and
         V (N, 6) (raw qpos, qvel); the wrench for the first step is already written.  Returns
         (row, reason) of the first step that raised a watched warning, else None."""
-        m, d, step = self.model, self.data, mujoco.mj_step
-        qpos, qvel = d.qpos, d.qvel
+        model, data, step = self.model, self.data, mujoco.mj_step
+        qpos, qvel = data.qpos, data.qvel
         dependent, write = seg.state_dependent, self._write_wrench
         warnings, counts = self._warnings, self._warning_counts
         for c0 in range(i0, i0 + n, _CHECK_EVERY):
             c1 = min(c0 + _CHECK_EVERY, i0 + n)
-            mujoco.mj_getState(m, d, self._checkpoint, _CHECKPOINT_SPEC)
+            mujoco.mj_getState(model, data, self._checkpoint, _CHECKPOINT_SPEC)
             for i in range(c0, c1):
                 if dependent and i > i0:
                     write(seg)
-                step(m, d)
+                step(model, data)
                 Q[i + 1] = qpos
                 V[i + 1] = qvel
             if any(w.number != c for w, c in zip(warnings, counts)):
@@ -307,15 +320,15 @@ class MujocoAdapter(Adapter):
         The counters are left at their moved values during the replay (MuJoCo prints a warning's
         text only when its counter is zero, so it is not printed twice) and set afterwards to
         their values before the chunk plus the replayed step's increments."""
-        m, d, step = self.model, self.data, mujoco.mj_step
-        qpos, qvel = d.qpos, d.qvel
+        model, data, step = self.model, self.data, mujoco.mj_step
+        qpos, qvel = data.qpos, data.qvel
         warnings = self._warnings
         after_chunk = [w.number for w in warnings]
-        mujoco.mj_setState(m, d, self._checkpoint, _CHECKPOINT_SPEC)
+        mujoco.mj_setState(model, data, self._checkpoint, _CHECKPOINT_SPEC)
         for i in range(c0, c1):
             if seg.state_dependent and i > i0:
                 self._write_wrench(seg)
-            step(m, d)
+            step(model, data)
             if not (np.array_equal(Q[i + 1], qpos, equal_nan=True)
                     and np.array_equal(V[i + 1], qvel, equal_nan=True)):
                 raise RuntimeError("mujoco: replaying a chunk from its saved state gave another "
@@ -339,16 +352,16 @@ class MujocoAdapter(Adapter):
         restored afterwards (added back), a watched warning is reported at the last step taken,
         and a stop on another warning (which the base loop ignores) is finished by the Python
         loop."""
-        m, d = self.model, self.data
+        model, data = self.model, self.data
         if self._roller is None:
             self._roller = _Rollout(nthread=0)  # nthread 0: runs on this thread, no pool
         state0 = np.empty((1, self._nstate))
-        mujoco.mj_getState(m, d, state0[0], _FULLPHYSICS)
+        mujoco.mj_getState(model, data, state0[0], _FULLPHYSICS)
         before = [w.number for w in self._all_warnings]
         out = S[i0 + 1:i0 + 1 + n]
-        self._roller.rollout([m], [d], state0, control_spec=_ROLLOUT_CONTROL_SPEC, nstep=n,
-                             initial_warmstart=d.qacc_warmstart.copy()[None], state=out[None],
-                             skip_checks=True)
+        self._roller.rollout([model], [data], state0, control_spec=_ROLLOUT_CONTROL_SPEC,
+                             nstep=n, initial_warmstart=data.qacc_warmstart.copy()[None],
+                             state=out[None], skip_checks=True)
         if not any(w.number for w in self._all_warnings):
             if any(before):
                 for w, b in zip(self._all_warnings, before):
@@ -368,14 +381,14 @@ class MujocoAdapter(Adapter):
 
     def bare_loop(self, steps: int) -> Callable[[], object]:
         """mj_step and copies of qpos/qvel, ``steps`` times on this world (``freebody bench``)."""
-        m, d = self.model, self.data
+        model, data = self.model, self.data
 
         def loop():
-            step, qpos, qvel = mujoco.mj_step, d.qpos, d.qvel
+            step, qpos, qvel = mujoco.mj_step, data.qpos, data.qvel
             Q, V = np.empty((steps + 1, qpos.size)), np.empty((steps + 1, qvel.size))
             Q[0], V[0] = qpos, qvel
             for k in range(1, steps + 1):
-                step(m, d)
+                step(model, data)
                 Q[k] = qpos
                 V[k] = qvel
             return Q, V
@@ -403,7 +416,7 @@ def _inertial_element(mass: float, I_body: np.ndarray) -> str:
     When MuJoCo's "A + B >= C" check would fail only by round-off (a flat body given with
     off-diagonal terms), the principal moments and axes are computed here instead (numpy eigh),
     C is set to A + B, and they are passed as ``diaginertia`` + ``quat``: a change of at most
-    _TRIANGLE_ROUNDOFF * C.  A real violation is left for MuJoCo to reject.
+    MUJOCO_TRIANGLE_ROUNDOFF * C (freebody.tolerances).  A real violation is left for MuJoCo to reject.
     """
     I = np.asarray(I_body, dtype=float)
     full = (f'<inertial pos="0 0 0" mass="{_fmt(mass)}" fullinertia="'
@@ -416,7 +429,7 @@ def _inertial_element(mass: float, I_body: np.ndarray) -> str:
         if "A + B >= C" not in str(e):
             raise
     evals, evecs = np.linalg.eigh(0.5 * (I + I.T))
-    if evals[0] + evals[1] < evals[2] * (1.0 - _TRIANGLE_ROUNDOFF):
+    if evals[0] + evals[1] < evals[2] * (1.0 - MUJOCO_TRIANGLE_ROUNDOFF):
         return full  # a real violation: MuJoCo's error is the right message
     evals[2] = evals[0] + evals[1]
     if np.linalg.det(evecs) < 0:
@@ -428,7 +441,7 @@ def _inertial_element(mass: float, I_body: np.ndarray) -> str:
 
 
 def _check_rotation(a: np.ndarray, b: np.ndarray) -> None:
-    if not np.allclose(a, b, atol=1e-12):
+    if not np.allclose(a, b, atol=MUJOCO_PRINCIPAL_AXES_ATOL):
         raise RuntimeError("principal axes of the inertia could not be converted to a quaternion")
 
 

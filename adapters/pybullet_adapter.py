@@ -19,7 +19,7 @@ PyBullet's conventions and what this adapter converts:
   both in the WORLD frame: canonical, no conversion.
 - Inertia is diagonal only: ``localInertiaDiagonal`` (3,) kg m^2 in the principal frame whose
   orientation in the link frame is ``baseInertialFrameOrientation``.  The adapter diagonalises
-  ``I_body = V diag(d) V^T`` (numpy ``eigh``, V made right-handed), uses the link frame as
+  ``I_body = V diag(moments) V^T`` (numpy ``eigh``, V made right-handed), uses the link frame as
   freebody's body frame (COM at its origin: ``baseInertialFramePosition = 0``) and sets
   ``baseInertialFrameOrientation = q_V``.
 - ``getBasePositionAndOrientation`` / ``resetBasePositionAndOrientation`` work on the pose of the
@@ -57,6 +57,8 @@ import pybullet
 from ..reference_impl.conventions import Trajectory, quat_wxyz_from_xyzw, quat_xyzw_from_wxyz
 from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_conjugate,
                                         quat_from_matrix, quat_multiply, quat_normalize)
+from ..tolerances import (PYBULLET_EIGEN_ATOL_REL, PYBULLET_EIGEN_RTOL, PYBULLET_INITIAL_STATE_RTOL,
+                          PYBULLET_PROBE_RTOL, PYBULLET_READBACK_RTOL)
 from .base import Adapter
 from .loads import Segment
 
@@ -69,13 +71,8 @@ MAX_COORDINATE_VELOCITY = 1.0e6
 DEFAULT_DAMPING = {"multibody": 0.04, "maximal": 0.0}
 DEFAULT_MAX_COORDINATE_VELOCITY = 100.0  # multibody only; maximal bodies have no clamp
 
-# Read-back tolerances.  Values set through the API come back bit-exact or to a few ulps; the probe
-# step of a spin about a principal axis keeps |w| to ~1e-14 relative (the gyroscopic term of a spin
-# about a rounded principal axis), while damping 0.04 or the clamp change it by > 1e-6 at any dt.
-_READBACK_RTOL = 1e-12
-_PROBE_RTOL = 1e-9
+# Read-back and probe tolerances (PYBULLET_*, with their reasons): freebody.tolerances.
 _PROBE_SPEED = 300.0  # m/s and rad/s: one world coordinate >= 300 / sqrt(3) > 100 in any frame
-_INITIAL_STATE_TOL = 1e-9  # build() re-reads the initial state (measured ~5e-16)
 
 
 class _EngineLoads:
@@ -152,19 +149,41 @@ class PybulletAdapter(Adapter):
             raise
 
     def _build(self, cid: int) -> None:
-        pb = pybullet
-        problem, body, init = self.problem, self.problem.body, self.problem.initial
-        dt = self.dt
+        """World, body, dynamics and initial state, each read back (or probed) and recorded."""
+        init = self.problem.initial
+        g = self._set_world(cid)
+        moments = self._set_principal_frame()
+        x0 = np.array(init.position, dtype=float)
+        q0 = quat_normalize(init.quaternion_wxyz)
+        v0 = np.array(init.linear_velocity, dtype=float)
+        w0 = np.array(init.angular_velocity, dtype=float)
+        mass = float(self.problem.body.mass)
 
-        # World: time step and gravity.
-        params = pb.getPhysicsEngineParameters(physicsClientId=cid)
+        inertia_default = self._create_body(cid, x0, q0, mass)
+        self._set_dynamics(cid, mass, moments)
+        self._check_created_pose(x0, q0)
+        self._record_dynamics(inertia_default, moments)
+
+        self._probe(x0, q0, g)
+        self._refresh_step(x0, q0)
+        self._set_initial_state(x0, q0, v0, w0)
+
+        # V^T: principal frame -> body frame, to turn PyBullet's inertial-frame matrix into R_body.
+        self._Vt = matrix_from_quat(self._q_V).T
+        self._engine_loads = {seg.k0: _EngineLoads(seg) for seg in self.loads.segments
+                              if seg.active}
+
+    def _set_world(self, cid: int) -> np.ndarray:
+        """Time step and gravity, read back and recorded; returns the gravity (3,) m/s^2 world."""
+        dt = self.dt
+        params = pybullet.getPhysicsEngineParameters(physicsClientId=cid)
         g_default = [params["gravityAccelerationX"], params["gravityAccelerationY"],
                      params["gravityAccelerationZ"]]
         dt_default = params["fixedTimeStep"]
-        g = np.array(problem.gravity, dtype=float)
-        pb.setTimeStep(dt, physicsClientId=cid)
-        pb.setGravity(*g, physicsClientId=cid)
-        params = pb.getPhysicsEngineParameters(physicsClientId=cid)
+        g = np.array(self.problem.gravity, dtype=float)
+        pybullet.setTimeStep(dt, physicsClientId=cid)
+        pybullet.setGravity(*g, physicsClientId=cid)
+        params = pybullet.getPhysicsEngineParameters(physicsClientId=cid)
         g_read = np.array([params["gravityAccelerationX"], params["gravityAccelerationY"],
                            params["gravityAccelerationZ"]])
         if params["fixedTimeStep"] != dt:
@@ -173,67 +192,80 @@ class PybulletAdapter(Adapter):
             raise RuntimeError(f"pybullet gravity read back {g_read}, set {g}")
         self.record_setting("fixedTimeStep", dt_default, dt)
         self.record_setting("gravity", g_default, g)
+        return g
 
-        # Inertia: I_body = V diag(d) V^T with V right-handed; q_V is the principal frame's
-        # orientation in the body (link) frame.
-        d, V = np.linalg.eigh(body.I_body)
+    def _set_principal_frame(self) -> np.ndarray:
+        """I_body = V diag(moments) V^T with V right-handed; q_V is the principal frame's
+        orientation in the body (link) frame.  Sets _q_V, _q_V_inv, _moments; returns the
+        principal moments (3,) kg m^2."""
+        I_body = self.problem.body.I_body
+        moments, V = np.linalg.eigh(I_body)
         if np.linalg.det(V) < 0:
             V[:, 2] = -V[:, 2]
-        if not np.allclose(V @ np.diag(d) @ V.T, body.I_body, rtol=1e-12, atol=1e-14 * np.max(d)):
+        if not np.allclose(V @ np.diag(moments) @ V.T, I_body, rtol=PYBULLET_EIGEN_RTOL,
+                           atol=PYBULLET_EIGEN_ATOL_REL * np.max(moments)):
             raise RuntimeError("eigen-decomposition of I_body failed")
         q_V = quat_from_matrix(V)
         self._q_V = q_V
         self._q_V_inv = quat_conjugate(q_V)
-        self._diag = d
+        self._moments = moments
+        return moments
 
-        x0 = np.array(init.position, dtype=float)
-        q0 = quat_normalize(init.quaternion_wxyz)
-        v0 = np.array(init.linear_velocity, dtype=float)
-        w0 = np.array(init.angular_velocity, dtype=float)
-        M = float(body.mass)
-
-        b = pb.createMultiBody(
-            baseMass=M, baseCollisionShapeIndex=-1, baseVisualShapeIndex=-1,
+    def _create_body(self, cid: int, x0: np.ndarray, q0: np.ndarray, mass: float) -> list:
+        """createMultiBody (no collision shape) at the initial pose, inertial frame at the COM
+        turned by q_V; sets _body and returns the engine's default inertia diagonal."""
+        body = pybullet.createMultiBody(
+            baseMass=mass, baseCollisionShapeIndex=-1, baseVisualShapeIndex=-1,
             basePosition=x0.tolist(), baseOrientation=quat_xyzw_from_wxyz(q0).tolist(),
             baseInertialFramePosition=[0.0, 0.0, 0.0],
-            baseInertialFrameOrientation=quat_xyzw_from_wxyz(q_V).tolist(),
+            baseInertialFrameOrientation=quat_xyzw_from_wxyz(self._q_V).tolist(),
             useMaximalCoordinates=self._maximal, physicsClientId=cid)
-        if b < 0:
+        if body < 0:
             raise RuntimeError("pybullet.createMultiBody failed")
-        self._body = b
-        inertia_default = list(pb.getDynamicsInfo(b, -1, physicsClientId=cid)[2])
+        self._body = body
+        return list(pybullet.getDynamicsInfo(body, -1, physicsClientId=cid)[2])
 
-        # Mass and inertia (mass= is passed with localInertiaDiagonal: without it a maximal body
-        # freezes or turns NaN), damping, clamp, sleeping.
-        damping_default = DEFAULT_DAMPING[self.integrator]
-        kwargs = dict(mass=M, localInertiaDiagonal=d.tolist(), linearDamping=0.0,
-                      angularDamping=0.0, activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING)
+    def _set_dynamics(self, cid: int, mass: float, moments: np.ndarray) -> None:
+        """Mass and inertia (mass= is passed with localInertiaDiagonal: without it a maximal body
+        freezes or turns NaN), damping, clamp, sleeping; mass, inertia and (multibody) inertial
+        frame read back."""
+        body, q_V = self._body, self._q_V
+        kwargs = dict(mass=mass, localInertiaDiagonal=moments.tolist(), linearDamping=0.0,
+                      angularDamping=0.0, activationState=pybullet.ACTIVATION_STATE_DISABLE_SLEEPING)
         if not self._maximal:
             kwargs["maxJointVelocity"] = MAX_COORDINATE_VELOCITY
-        pb.changeDynamics(b, -1, physicsClientId=cid, **kwargs)
+        pybullet.changeDynamics(body, -1, physicsClientId=cid, **kwargs)
 
-        info = pb.getDynamicsInfo(b, -1, physicsClientId=cid)
+        info = pybullet.getDynamicsInfo(body, -1, physicsClientId=cid)
         mass_read, inertia_read = info[0], np.array(info[2])
-        if abs(mass_read - M) > _READBACK_RTOL * M:
-            raise RuntimeError(f"pybullet mass read back {mass_read}, set {M}")
-        if not np.allclose(inertia_read, d, rtol=_READBACK_RTOL, atol=0.0):
-            raise RuntimeError(f"pybullet localInertiaDiagonal read back {inertia_read}, set {d}")
+        if abs(mass_read - mass) > PYBULLET_READBACK_RTOL * mass:
+            raise RuntimeError(f"pybullet mass read back {mass_read}, set {mass}")
+        if not np.allclose(inertia_read, moments, rtol=PYBULLET_READBACK_RTOL, atol=0.0):
+            raise RuntimeError(f"pybullet localInertiaDiagonal read back {inertia_read}, "
+                               f"set {moments}")
         if not self._maximal:
             # (getDynamicsInfo's inertial-frame fields are garbage for maximal bodies; the pose
-            # check below proves the inertial frame in both variants.)
+            # check of _check_created_pose proves the inertial frame in both variants.)
             pos_i, orn_i = np.array(info[3]), quat_wxyz_from_xyzw(info[4])
-            if np.any(pos_i != 0.0) or geodesic_angle(orn_i, q_V) > _READBACK_RTOL:
+            if np.any(pos_i != 0.0) or geodesic_angle(orn_i, q_V) > PYBULLET_READBACK_RTOL:
                 raise RuntimeError(f"pybullet inertial frame read back {pos_i}, {orn_i}; "
                                    f"set (0, 0, 0), {q_V}")
-        # The pose read back right after creation is the inertial frame: q0 * q_V.
+
+    def _check_created_pose(self, x0: np.ndarray, q0: np.ndarray) -> None:
+        """The pose read back right after creation is the inertial frame: q0 * q_V."""
         x_read, q_read = self._read_pose()
-        if (np.max(np.abs(x_read - x0)) > _INITIAL_STATE_TOL * (1.0 + np.max(np.abs(x0)))
-                or geodesic_angle(q_read, q0) > _INITIAL_STATE_TOL):
+        if (np.max(np.abs(x_read - x0)) > PYBULLET_INITIAL_STATE_RTOL * (1.0 + np.max(np.abs(x0)))
+                or geodesic_angle(q_read, q0) > PYBULLET_INITIAL_STATE_RTOL):
             raise RuntimeError("pybullet did not take the inertial frame as expected: created at "
                                f"{x0}, {q0}; read back (converted) {x_read}, {q_read}")
-        self.record_setting("localInertiaDiagonal", inertia_default, d)
+
+    def _record_dynamics(self, inertia_default: list, moments: np.ndarray) -> None:
+        """record_setting for what _set_dynamics changed (PyBullet has no getter for damping,
+        the clamp or the activation state: _probe proves the first two)."""
+        damping_default = DEFAULT_DAMPING[self.integrator]
+        self.record_setting("localInertiaDiagonal", inertia_default, moments)
         self.record_setting("baseInertialFrameOrientation_xyzw", [0.0, 0.0, 0.0, 1.0],
-                            quat_xyzw_from_wxyz(q_V))
+                            quat_xyzw_from_wxyz(self._q_V))
         self.record_setting("linearDamping", damping_default, 0.0)
         self.record_setting("angularDamping", damping_default, 0.0)
         if not self._maximal:
@@ -242,52 +274,51 @@ class PybulletAdapter(Adapter):
         self.record_setting("activationState", "sleeping not enabled (no getter)",
                             "ACTIVATION_STATE_DISABLE_SLEEPING")
 
-        self._probe(x0, q0, g)
-
-        # Refresh step at rest at the initial pose: a maximal body's world inverse inertia is only
-        # recomputed by a step, and the first step's torque impulse would use a stale one.
+    def _refresh_step(self, x0: np.ndarray, q0: np.ndarray) -> None:
+        """A step at rest at the initial pose: a maximal body's world inverse inertia is only
+        recomputed by a step, and the first step's torque impulse would use a stale one."""
+        cid, body = self._cid, self._body
         self._write_pose(x0, q0)
-        pb.resetBaseVelocity(b, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=cid)
-        pb.stepSimulation(physicsClientId=cid)
+        pybullet.resetBaseVelocity(body, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=cid)
+        pybullet.stepSimulation(physicsClientId=cid)
 
-        # The initial state: pose first (resetBasePositionAndOrientation zeroes velocities).
+    def _set_initial_state(self, x0: np.ndarray, q0: np.ndarray, v0: np.ndarray,
+                           w0: np.ndarray) -> None:
+        """The initial state, read back: pose first (resetBasePositionAndOrientation zeroes
+        velocities)."""
+        cid, body = self._cid, self._body
         self._write_pose(x0, q0)
-        pb.resetBaseVelocity(b, v0.tolist(), w0.tolist(), physicsClientId=cid)
+        pybullet.resetBaseVelocity(body, v0.tolist(), w0.tolist(), physicsClientId=cid)
         x, q = self._read_pose()
-        v, w = (np.array(a) for a in pb.getBaseVelocity(b, physicsClientId=cid))
+        v, w = (np.array(a) for a in pybullet.getBaseVelocity(body, physicsClientId=cid))
         scale = 1.0 + max(np.max(np.abs(x0)), np.max(np.abs(v0)), np.max(np.abs(w0)))
         err = max(np.max(np.abs(x - x0)), np.max(np.abs(v - v0)), np.max(np.abs(w - w0)))
-        if err > _INITIAL_STATE_TOL * scale or geodesic_angle(q, q0) > _INITIAL_STATE_TOL:
+        if err > PYBULLET_INITIAL_STATE_RTOL * scale or geodesic_angle(q, q0) > PYBULLET_INITIAL_STATE_RTOL:
             raise RuntimeError(f"pybullet initial state read back {x}, {q}, {v}, {w}; "
                                f"set {x0}, {q0}, {v0}, {w0}")
-
-        # V^T: principal frame -> body frame, to turn PyBullet's inertial-frame matrix into R_body.
-        self._Vt = matrix_from_quat(self._q_V).T
-        self._engine_loads = {seg.k0: _EngineLoads(seg) for seg in self.loads.segments
-                              if seg.active}
 
     def _probe(self, x0: np.ndarray, q0: np.ndarray, g: np.ndarray) -> None:
         """One step of a fast spin about a principal axis: proves damping 0 and no clamp.
 
         Torque-free, a spin about a principal axis keeps its angular velocity and the linear
         velocity gains exactly h g; damping 0.04 or the +-100 clamp would change either by far
-        more than _PROBE_RTOL.  The caller restores the state afterwards.
+        more than PYBULLET_PROBE_RTOL.  The caller restores the state afterwards.
         """
-        pb, cid, b, h = pybullet, self._cid, self._body, self.dt
+        cid, b, h = self._cid, self._body, self.dt
         R_principal = matrix_from_quat(q0) @ matrix_from_quat(self._q_V)  # principal -> world
         w_p = _PROBE_SPEED * R_principal[:, 0]
         v_p = _PROBE_SPEED * np.ones(3) / np.sqrt(3.0)
         self._write_pose(x0, q0)
-        pb.resetBaseVelocity(b, v_p.tolist(), w_p.tolist(), physicsClientId=cid)
-        pb.stepSimulation(physicsClientId=cid)
-        v, w = (np.array(a) for a in pb.getBaseVelocity(b, physicsClientId=cid))
+        pybullet.resetBaseVelocity(b, v_p.tolist(), w_p.tolist(), physicsClientId=cid)
+        pybullet.stepSimulation(physicsClientId=cid)
+        v, w = (np.array(a) for a in pybullet.getBaseVelocity(b, physicsClientId=cid))
         dv = np.max(np.abs(v - (v_p + h * g))) / _PROBE_SPEED
         dw = np.max(np.abs(w - w_p)) / _PROBE_SPEED
-        if dv > _PROBE_RTOL or dw > _PROBE_RTOL:
+        if dv > PYBULLET_PROBE_RTOL or dw > PYBULLET_PROBE_RTOL:
             raise RuntimeError(
                 "pybullet damping or velocity clamp did not take effect: one torque-free step of "
                 f"v = {v_p}, w = {w_p} (a principal axis) gave v = {v} (expected {v_p + h * g}), "
-                f"w = {w} (relative changes {dv:.3g}, {dw:.3g} > {_PROBE_RTOL})")
+                f"w = {w} (relative changes {dv:.3g}, {dw:.3g} > {PYBULLET_PROBE_RTOL})")
 
     def _write_pose(self, x: np.ndarray, q_body_wxyz: np.ndarray) -> None:
         """resetBasePositionAndOrientation of the inertial frame for a body pose (zeroes velocities)."""
@@ -317,13 +348,13 @@ class PybulletAdapter(Adapter):
         forces at the COM at x, with x and R the pose at the start of the step (read from the
         engine now).  Couples: torque + R body_torque.
         """
-        pb, cid, b, world = pybullet, self._cid, self._body, pybullet.WORLD_FRAME
-        force = pb.applyExternalForce
+        cid, b, world = self._cid, self._body, pybullet.WORLD_FRAME
+        force = pybullet.applyExternalForce
         if loads.needs_pose:
-            x, orn = pb.getBasePositionAndOrientation(b, physicsClientId=cid)
+            x, orn = pybullet.getBasePositionAndOrientation(b, physicsClientId=cid)
             if loads.needs_rotation:
                 # R_body = R_inertial V^T (R_inertial from PyBullet's own xyzw conversion).
-                R = np.reshape(pb.getMatrixFromQuaternion(orn), (3, 3)) @ self._Vt
+                R = np.reshape(pybullet.getMatrixFromQuaternion(orn), (3, 3)) @ self._Vt
                 xa = np.array(x)
                 for f, bp in loads.body_point_forces:
                     force(b, -1, f, (xa + R @ bp).tolist(), world, physicsClientId=cid)
@@ -336,7 +367,7 @@ class PybulletAdapter(Adapter):
         else:
             tau = loads.torque_list
         if tau is not None:
-            pb.applyExternalTorque(b, -1, tau, world, physicsClientId=cid)
+            pybullet.applyExternalTorque(b, -1, tau, world, physicsClientId=cid)
 
     # --- stepping -------------------------------------------------------------------------------
     def advance(self, steps: int) -> Trajectory:
@@ -349,8 +380,9 @@ class PybulletAdapter(Adapter):
         acts skip the loads altogether.  PyBullet reports no instability of its own, so nothing
         raises EngineDiverged here.
         """
-        pb, cid, b = pybullet, self._cid, self._body
-        step, get_pose, get_vel = pb.stepSimulation, pb.getBasePositionAndOrientation, pb.getBaseVelocity
+        cid, b = self._cid, self._body
+        step, get_pose, get_vel = (pybullet.stepSimulation, pybullet.getBasePositionAndOrientation,
+                                   pybullet.getBaseVelocity)
         apply = self._apply_loads
         k0 = self.k
         F: list[float] = []  # (steps + 1) x 13 floats, see above

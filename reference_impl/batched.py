@@ -33,7 +33,8 @@ import numpy as np
 
 from .conventions import Trajectory
 from .problem import Problem
-from .rotations import nearest_rotation, orthonormality_error, quat_conjugate, quat_multiply
+from .rotations import (matrix_from_quat, nearest_rotation, orthonormality_error, quat_conjugate,
+                        quat_multiply)
 
 __all__ = ["BATCHED_INTEGRATORS", "BatchTrajectory", "simulate_batch", "supports_problem",
            "simulate_problem", "quat_from_matrix_batch", "torque_free_rotation_batch",
@@ -418,18 +419,78 @@ class _ImplicitGyro:
         return D
 
 
+class _ExpRotation:
+    """q+ = normalize(q E), E = (s, phi) proportional to Exp(phi), phi = h w (see
+    _exp_scalar_part): the rotation update of _run_semi_implicit for the whole batch, written out
+    flat (every call writes into a buffer made here once).
+
+    Quaternions live in wrapped (6, B) buffers, rows (w, x, y, z, x, y), seen through the tuple of
+    views that :meth:`views` makes once per buffer.
+    """
+
+    def __init__(self, B: int):
+        self.t3, self.t3b = np.empty((3, B)), np.empty((3, B))
+        self.t4, self.t2 = np.empty((4, B)), np.empty((2, B))
+        self.z, self.dot, self.norm = np.empty(B), np.empty(B), np.empty(B)
+        # E = (s, phi) proportional to Exp(phi), phi = h w_p, rows (s, x, y, z, x, y)
+        E6 = np.empty((6, B))
+        self.E = (E6[0], E6[0:4], E6[1:4], E6[1:6], E6[2:5], E6[3:6])
+
+    @staticmethod
+    def views(Q6: np.ndarray) -> tuple:
+        """(Q6, w, (w, x, y, z), (x, y, z), rows 2:5, rows 3:6, rows 4:6, rows 1:3) of a wrapped
+        (6, B) quaternion buffer."""
+        return (Q6, Q6[0], Q6[0:4], Q6[1:4], Q6[2:5], Q6[3:6], Q6[4:6], Q6[1:3])
+
+    def __call__(self, W05: np.ndarray, h: float, qa: tuple, qb: tuple) -> None:
+        """qb = normalize(qa Exp(h w)), w wrapped in W05 (5, B) rows (x, y, z, x, y); qa, qb
+        are :meth:`views` of two buffers."""
+        mul, add, sub = np.multiply, np.add, np.subtract
+        t3, t3b, t4, t2, z, dot, norm = self.t3, self.t3b, self.t4, self.t2, self.z, self.dot, self.norm
+        s, E04, phi, phi5, E25, E36 = self.E
+        mul(W05, h, out=phi5)
+        mul(phi, phi, out=t3)
+        add(t3[0], t3[1], out=z)
+        add(z, t3[2], out=z)
+        _exp_scalar_part(z, phi5, s)
+        _, qw, _, qv, q25, q36, _, _ = qa
+        _, rw, r04, rv, _, _, r46, r13 = qb
+        # (row by row: numpy's ufuncs are several times slower on a broadcast (B,) operand)
+        for i in range(4):
+            mul(E04[i], qw, out=r04[i])                      # (q_w s, q_w phi)
+        for i in range(3):
+            mul(qv[i], s, out=t3[i])
+        add(rv, t3, out=rv)                                  # + s q_v
+        mul(q25, E36, out=t3)
+        mul(q36, E25, out=t3b)
+        sub(t3, t3b, out=t3)
+        add(rv, t3, out=rv)                                  # + q_v x phi
+        mul(qv, phi, out=t3)
+        add(t3[0], t3[1], out=dot)
+        add(dot, t3[2], out=dot)
+        sub(rw, dot, out=rw)                                 # - q_v . phi
+        mul(r04, r04, out=t4)
+        add(t4[0:2], t4[2:4], out=t2)
+        add(t2[0], t2[1], out=norm)
+        np.sqrt(norm, out=norm)
+        np.divide(1.0, norm, out=norm)
+        for i in range(4):
+            mul(r04[i], norm, out=r04[i])
+        r46[...] = r13
+
+
 def _run_semi_implicit(p: dict, h: float, steps: int, rec: _Recorder, implicit: bool) -> None:
     """The engines' map in principal-frame variables (x, q_p, v, w_p); see integrators.py.
 
     w_p+ = w_p + h I^-1 (tau_p - w_p x I w_p) (explicit) or J^-1 h (...) (implicit, _ImplicitGyro),
-    v+ = v + h (f/M + g), x+ = x + h v+, q_p+ = normalize(q_p Exp(h w_p+)).
+    v+ = v + h (f/M + g), x+ = x + h v+, q_p+ = normalize(q_p Exp(h w_p+)) (_ExpRotation).
 
     The hottest loop of the module, so written out flat: every view it uses is sliced once before
     the loop (slicing costs as much as a small ufunc call) and every call writes into a buffer.
     """
     B = p["B"]
     wk = _Work(B)
-    mul, add, sub = np.multiply, np.add, np.subtract
+    mul, add = np.multiply, np.add
     X, V = p["x"].copy(), p["v"].copy()
     W7 = np.empty((7, B))                                    # w_p rows (x, y, z, x, y, z, x)
     W7[0:3] = p["w_p"]
@@ -443,17 +504,9 @@ def _run_semi_implicit(p: dict, h: float, steps: int, rec: _Recorder, implicit: 
     # explicit: h I^-1 (-w x I w) = h ((I2 - I3)/I1 wy wz, (I3 - I1)/I2 wz wx, (I1 - I2)/I3 wx wy)
     gyro = h * np.stack([(I[1] - I[2]) / I[0], (I[2] - I[0]) / I[1], (I[0] - I[1]) / I[2]])
     implicit_dw = _ImplicitGyro(I, h, W7) if implicit else None
-    dw, t3, t3b = np.empty((3, B)), np.empty((3, B)), np.empty((3, B))
-    t4, t2 = np.empty((4, B)), np.empty((2, B))
-    z, d, n = np.empty(B), np.empty(B), np.empty(B)
-    # E = (s, phi) proportional to Exp(phi), phi = h w_p, rows (s, x, y, z, x, y)
-    E6 = np.empty((6, B))
-    s, E04, phi, phi5, E25, E36 = E6[0], E6[0:4], E6[1:4], E6[1:6], E6[2:5], E6[3:6]
-
-    def views(Q6):
-        return (Q6, Q6[0], Q6[0:4], Q6[1:4], Q6[2:5], Q6[3:6], Q6[4:6], Q6[1:3])
-
-    qa, qb = views(np.empty((6, B))), views(np.empty((6, B)))
+    rotate = _ExpRotation(B)
+    dw, t3 = np.empty((3, B)), np.empty((3, B))
+    qa, qb = rotate.views(np.empty((6, B))), rotate.views(np.empty((6, B)))
     qa[2][:] = p["q_p"]
     qa[6][:] = qa[7]
     rec(0, x=X, q=qa[2], v=V, w=W)
@@ -480,36 +533,7 @@ def _run_semi_implicit(p: dict, h: float, steps: int, rec: _Recorder, implicit: 
         add(V, dv, out=V)
         mul(V, h, out=t3)
         add(X, t3, out=X)
-        # q+ = normalize(q E), E = (s, phi) proportional to Exp(phi), phi = h w+ (see _exp_scalar_part)
-        mul(W05, h, out=phi5)
-        mul(phi, phi, out=t3)
-        add(t3[0], t3[1], out=z)
-        add(z, t3[2], out=z)
-        _exp_scalar_part(z, phi5, s)
-        _, qw, _, qv, q25, q36, _, _ = qa
-        _, rw, r04, rv, _, _, r46, r13 = qb
-        # (row by row: numpy's ufuncs are several times slower on a broadcast (B,) operand)
-        for i in range(4):
-            mul(E04[i], qw, out=r04[i])                      # (q_w s, q_w phi)
-        for i in range(3):
-            mul(qv[i], s, out=t3[i])
-        add(rv, t3, out=rv)                                  # + s q_v
-        mul(q25, E36, out=t3)
-        mul(q36, E25, out=t3b)
-        sub(t3, t3b, out=t3)
-        add(rv, t3, out=rv)                                  # + q_v x phi
-        mul(qv, phi, out=t3)
-        add(t3[0], t3[1], out=d)
-        add(d, t3[2], out=d)
-        sub(rw, d, out=rw)                                   # - q_v . phi
-        mul(r04, r04, out=t4)
-        add(t4[0:2], t4[2:4], out=t2)
-        add(t2[0], t2[1], out=n)
-        np.sqrt(n, out=n)
-        np.divide(1.0, n, out=n)
-        for i in range(4):
-            mul(r04[i], n, out=r04[i])
-        r46[...] = r13
+        rotate(W05, h, qa, qb)                               # q+ = normalize(q Exp(h w+))
         qa, qb = qb, qa
         rec(k + 1, x=X, q=qa[2], v=V, w=W)
 
@@ -724,6 +748,8 @@ def simulate_batch(integrator: str, mass, I_body, position, quaternion_wxyz, lin
 
 def _simulate_batch(integrator, B, mass, I_body, position, quaternion_wxyz, linear_velocity,
                     angular_velocity, h, steps, gravity, force, torque, every) -> BatchTrajectory:
+    """simulate_batch after its checks: the inputs broadcast to the batch and laid out in rows
+    (the dict ``p`` the _run_* kernels take), then the matrix or the quaternion integrators."""
     M = np.broadcast_to(np.asarray(mass, dtype=float).reshape(-1), (B,)).copy()
     Ib = np.broadcast_to(I_body, (B, 3, 3)).copy()
     x0 = np.broadcast_to(np.asarray(position, dtype=float), (B, 3))
@@ -737,30 +763,43 @@ def _simulate_batch(integrator, B, mass, I_body, position, quaternion_wxyz, line
         t = _rows(torque, 3, B, "torque")
         tau5 = np.concatenate([t, t[0:2]])
     Mrow = M.reshape(1, B) if np.ndim(mass) else np.full((1, 1), float(M[0]))
-    matrix = integrator.startswith("euler-matrix")
     p = {"B": B, "M": Mrow, "x": np.ascontiguousarray(x0.T), "f": f, "g": g, "tau": tau5}
-    shared_inertia = I_body.ndim == 2
-    if matrix:
-        from .rotations import matrix_from_quat
-        R0 = matrix_from_quat(q0)                                        # (B, 3, 3)
-        inv_Ib = np.linalg.inv(I_body if shared_inertia else Ib)
-        L0 = np.einsum("bij,bjk,blk,bl->bi", R0, np.broadcast_to(Ib, (B, 3, 3)), R0, w0)
-        p.update(R=np.ascontiguousarray(np.moveaxis(R0, 0, -1)),
-                 I_inv_b=(inv_Ib[:, :, None] if shared_inertia else np.moveaxis(inv_Ib, 0, -1).copy()),
-                 p=np.ascontiguousarray((M[:, None] * v0).T), L=np.ascontiguousarray(L0.T))
-        rec = _Recorder(steps, every, {"x": 3, "R": 9, "p": 3, "L": 3}, B)
-        _run_euler_matrix(p, h, steps, rec, gram=integrator == "euler-matrix-gs")
-        a = rec.arrays
-        Rs = np.moveaxis(a["R"].reshape(-1, 3, 3, B), -1, 1)            # (N, B, 3, 3)
-        Ls = _soa_to_aos(a["L"])
-        inv = np.broadcast_to(inv_Ib, (B, 3, 3))
-        ws = np.einsum("nbij,bjk,nblk,nbl->nbi", Rs, inv, Rs, Ls)
-        quats = quat_from_matrix_batch(nearest_rotation(Rs))
-        t = rec.keep * h
-        return BatchTrajectory(t, _soa_to_aos(a["x"]), quats, _soa_to_aos(a["p"]) / M[:, None],
-                               ws, orthonormality_error(Rs))
+    if integrator.startswith("euler-matrix"):
+        return _simulate_matrix(integrator, p, M, I_body, Ib, q0, v0, w0, h, steps, every)
+    return _simulate_principal(integrator, p, M, I_body, Ib, q0, v0, w0, h, steps, every)
 
-    if shared_inertia:
+
+def _simulate_matrix(integrator, p, M, I_body, Ib, q0, v0, w0, h, steps,
+                     every) -> BatchTrajectory:
+    """euler-matrix and euler-matrix-gs in the body frame on (x, R, p, L); w = R I_b^-1 R^T L and
+    the quaternion of the nearest rotation from the samples."""
+    B = p["B"]
+    shared_inertia = I_body.ndim == 2
+    R0 = matrix_from_quat(q0)                                        # (B, 3, 3)
+    inv_Ib = np.linalg.inv(I_body if shared_inertia else Ib)
+    L0 = np.einsum("bij,bjk,blk,bl->bi", R0, np.broadcast_to(Ib, (B, 3, 3)), R0, w0)
+    p.update(R=np.ascontiguousarray(np.moveaxis(R0, 0, -1)),
+             I_inv_b=(inv_Ib[:, :, None] if shared_inertia else np.moveaxis(inv_Ib, 0, -1).copy()),
+             p=np.ascontiguousarray((M[:, None] * v0).T), L=np.ascontiguousarray(L0.T))
+    rec = _Recorder(steps, every, {"x": 3, "R": 9, "p": 3, "L": 3}, B)
+    _run_euler_matrix(p, h, steps, rec, gram=integrator == "euler-matrix-gs")
+    a = rec.arrays
+    Rs = np.moveaxis(a["R"].reshape(-1, 3, 3, B), -1, 1)            # (N, B, 3, 3)
+    Ls = _soa_to_aos(a["L"])
+    inv = np.broadcast_to(inv_Ib, (B, 3, 3))
+    ws = np.einsum("nbij,bjk,nblk,nbl->nbi", Rs, inv, Rs, Ls)
+    quats = quat_from_matrix_batch(nearest_rotation(Rs))
+    t = rec.keep * h
+    return BatchTrajectory(t, _soa_to_aos(a["x"]), quats, _soa_to_aos(a["p"]) / M[:, None],
+                           ws, orthonormality_error(Rs))
+
+
+def _simulate_principal(integrator, p, M, I_body, Ib, q0, v0, w0, h, steps,
+                        every) -> BatchTrajectory:
+    """The quaternion integrators, run in each body's principal frame (see the module docstring;
+    a shared inertia is diagonalised once, a diagonal one keeps the body frame)."""
+    B = p["B"]
+    if I_body.ndim == 2:
         I_p, q_P = _principal(I_body[None])
         I_p_rows = np.ascontiguousarray(I_p.T)                           # (3, 1)
         q_Pb = None if q_P is None else np.broadcast_to(q_P, (B, 4))

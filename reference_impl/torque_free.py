@@ -249,6 +249,81 @@ def _third_kind_part(sn: np.ndarray, cn: np.ndarray, dn: np.ndarray, n: float, k
             + sn * elliprc(c2 * d2, (1.0 - n * s2) * (1.0 - N * s2)))
 
 
+def _polhode_modulus(Ia: float, Ib: float, Ic: float, ma0: float, mb0: float, mc0: float):
+    """(k^2, 1 - k^2, L^2 - 2E Ia) of the polhode through m0 = (ma0, mb0, mc0) (see _asymmetric).
+
+    The conserved brackets 2E Ic - L^2, L^2 - 2E Ia, L^2 - 2E Ib are formed with their m_b^2
+    (resp. m_a^2, m_c^2) terms cancelled analytically, so k^2 and 1 - k^2 (each clamped to
+    [0, 1]) both have full relative accuracy.
+    """
+    twoE_Ic_m_L2 = ma0 * ma0 * (Ic - Ia) / Ia + mb0 * mb0 * (Ic - Ib) / Ib      # 2E Ic - L^2
+    L2_m_twoE_Ia = mb0 * mb0 * (Ib - Ia) / Ib + mc0 * mc0 * (Ic - Ia) / Ic      # L^2 - 2E Ia
+    L2_m_twoE_Ib = mc0 * mc0 * (Ic - Ib) / Ic - ma0 * ma0 * (Ib - Ia) / Ia      # L^2 - 2E Ib
+    den = (Ic - Ib) * L2_m_twoE_Ia
+    k2 = min(max((Ib - Ia) * twoE_Ic_m_L2 / den, 0.0), 1.0)     # Jacobi parameter m = k^2
+    kp2 = min(max((Ic - Ia) * L2_m_twoE_Ib / den, 0.0), 1.0)    # 1 - k^2, to full accuracy
+    return k2, kp2, L2_m_twoE_Ia
+
+
+def _initial_phase(y0: float, x0: float, k2: float, kp2: float):
+    """(sn0, cn0, dn0, tau0) of the start: am(tau0) = atan2(y0, x0), in [-pi/2, pi/2] (x0 >= 0).
+
+    tau0 = F(am0 | k^2); on the separatrix with cn0 = 0 (a spin within 1e-75 of the
+    intermediate axis) F is infinite: |tau0| = 700 is the saddle to rounding (sech 700 ~ 1e-304).
+    """
+    h = float(np.hypot(x0, y0))
+    sn0, cn0 = (y0 / h, x0 / h) if h > 0.0 else (0.0, 1.0)
+    dn0 = float(np.sqrt(kp2 + k2 * cn0 * cn0))
+    with np.errstate(divide="ignore"):
+        F0 = elliprf(cn0 * cn0, dn0 * dn0, 1.0)
+    tau0 = float(np.clip(sn0 * F0, -700.0, 700.0))
+    return sn0, cn0, dn0, tau0
+
+
+def _periodic_phase(tau: np.ndarray, sn0: float, cn0: float, dn0: float, n: float, k2: float,
+                    kp2: float, use_q: bool):
+    """Jacobi functions and third-kind integral at tau off the separatrix (k^2 < 1).
+
+    Returns (j, sn_r, cn_r, sn, cn, dn, G, G0): tau = 2K j + r with |r| <= K; sn_r, cn_r the
+    functions at r; sn, cn, dn those at tau; G = P(tau) (or Q(tau) when ``use_q``) and G0 the
+    same at tau0, from the start's sn0, cn0, dn0 (see _asymmetric).
+    """
+    K = float(elliprf(0.0, kp2, 1.0))
+    j = np.rint(tau / (2.0 * K))                  # tau = 2K j + r, |r| <= K
+    r = tau - 2.0 * K * j
+    sn_r, cn_r, dn_r = _jacobi_sn_cn_dn(r, k2, kp2, K)
+    sgn = 1.0 - 2.0 * np.mod(j, 2.0)              # sn, cn flip sign every 2K; dn does not
+    sn, cn, dn = sgn * sn_r, sgn * cn_r, dn_r
+    half_period = 2.0 * float(_third_kind_part(np.float64(1.0), np.float64(0.0),
+                                               np.sqrt(np.float64(kp2)), n, k2, use_q))
+    G = half_period * j + _third_kind_part(sn_r, cn_r, dn_r, n, k2, use_q)
+    G0 = float(_third_kind_part(np.float64(sn0), np.float64(cn0), np.float64(dn0), n, k2,
+                                use_q))
+    return j, sn_r, cn_r, sn, cn, dn, G, G0
+
+
+def _separatrix_phase(tau: np.ndarray, tau0: float, n: float, use_q: bool):
+    """_periodic_phase on the separatrix, k^2 = 1: sn = tanh, cn = dn = sech, no period (j = 0).
+
+    P(u) = (u + sqrt(p) atan(sqrt(p) tanh u)) / (1 + p) with p = -n;  Q = P - u.
+    """
+    j = np.zeros_like(tau)
+    sn_r = sn = np.tanh(tau)
+    ex = np.exp(-np.abs(tau))
+    cn_r = cn = 2.0 * ex / (1.0 + ex * ex)        # sech, without overflow
+    dn = cn
+    p = -n
+    sp = float(np.sqrt(p))
+
+    def sep(u, tanh_u):
+        if use_q:
+            return (sp * np.arctan(sp * tanh_u) - p * u) / (1.0 + p)
+        return (u + sp * np.arctan(sp * tanh_u)) / (1.0 + p)
+    G = sep(tau, sn)
+    G0 = sep(tau0, np.tanh(tau0))
+    return j, sn_r, cn_r, sn, cn, dn, G, G0
+
+
 def _asymmetric(I_abc: np.ndarray, m0: np.ndarray, t: np.ndarray):
     """Torque-free motion with distinct moments, polhode circulating about the third axis c.
 
@@ -266,13 +341,7 @@ def _asymmetric(I_abc: np.ndarray, m0: np.ndarray, t: np.ndarray):
     """
     Ia, Ib, Ic = (float(v) for v in I_abc)
     ma0, mb0, mc0 = (float(v) for v in m0)
-    # Conserved brackets with the m_b^2 (resp. m_a^2, m_c^2) terms cancelled analytically.
-    twoE_Ic_m_L2 = ma0 * ma0 * (Ic - Ia) / Ia + mb0 * mb0 * (Ic - Ib) / Ib      # 2E Ic - L^2
-    L2_m_twoE_Ia = mb0 * mb0 * (Ib - Ia) / Ib + mc0 * mc0 * (Ic - Ia) / Ic      # L^2 - 2E Ia
-    L2_m_twoE_Ib = mc0 * mc0 * (Ic - Ib) / Ic - ma0 * ma0 * (Ib - Ia) / Ia      # L^2 - 2E Ib
-    den = (Ic - Ib) * L2_m_twoE_Ia
-    k2 = min(max((Ib - Ia) * twoE_Ic_m_L2 / den, 0.0), 1.0)     # Jacobi parameter m = k^2
-    kp2 = min(max((Ic - Ia) * L2_m_twoE_Ib / den, 0.0), 1.0)    # 1 - k^2, to full accuracy
+    k2, kp2, L2_m_twoE_Ia = _polhode_modulus(Ia, Ib, Ic, ma0, mb0, mc0)
     separatrix = kp2 < _KP2_SEPARATRIX
     if separatrix:
         k2, kp2 = 1.0, 0.0
@@ -288,15 +357,7 @@ def _asymmetric(I_abc: np.ndarray, m0: np.ndarray, t: np.ndarray):
     chi = 1.0 if Ic > Ib else -1.0                    # circulation sense: +1 major, -1 minor axis
     s_b = chi * sigma * s                             # m_b = s_b A_b sn(tau)
     # am(tau0) = atan2(s_b mb0 / sqrt(1 - n), sigma ma0), in [-pi/2, pi/2]
-    y0, x0 = s_b * mb0 / sq1n, sigma * ma0
-    h = float(np.hypot(x0, y0))
-    sn0, cn0 = (y0 / h, x0 / h) if h > 0.0 else (0.0, 1.0)
-    dn0 = float(np.sqrt(kp2 + k2 * cn0 * cn0))
-    # tau0 = F(am0 | k^2); on the separatrix with cn0 = 0 (a spin within 1e-75 of the
-    # intermediate axis) F is infinite: |tau0| = 700 is the saddle to rounding (sech 700 ~ 1e-304).
-    with np.errstate(divide="ignore"):
-        F0 = elliprf(cn0 * cn0, dn0 * dn0, 1.0)
-    tau0 = float(np.clip(sn0 * F0, -700.0, 700.0))
+    sn0, cn0, dn0, tau0 = _initial_phase(s_b * mb0 / sq1n, sigma * ma0, k2, kp2)
     tau = tau0 + lam * t
 
     # phi(t) = L t / Ic + C [P(tau) - P(tau0)], P(u) = int_0^u dv / (1 - n sn^2 v), C as below.
@@ -305,33 +366,9 @@ def _asymmetric(I_abc: np.ndarray, m0: np.ndarray, t: np.ndarray):
     use_q = n * n <= k2
     C = L * (Ic - Ia) / (Ia * Ic * lam)
     if not separatrix:
-        K = float(elliprf(0.0, kp2, 1.0))
-        j = np.rint(tau / (2.0 * K))                  # tau = 2K j + r, |r| <= K
-        r = tau - 2.0 * K * j
-        sn_r, cn_r, dn_r = _jacobi_sn_cn_dn(r, k2, kp2, K)
-        sgn = 1.0 - 2.0 * np.mod(j, 2.0)              # sn, cn flip sign every 2K; dn does not
-        sn, cn, dn = sgn * sn_r, sgn * cn_r, dn_r
-        half_period = 2.0 * float(_third_kind_part(np.float64(1.0), np.float64(0.0),
-                                                   np.sqrt(np.float64(kp2)), n, k2, use_q))
-        G = half_period * j + _third_kind_part(sn_r, cn_r, dn_r, n, k2, use_q)
-        G0 = float(_third_kind_part(np.float64(sn0), np.float64(cn0), np.float64(dn0), n, k2,
-                                    use_q))
+        j, sn_r, cn_r, sn, cn, dn, G, G0 = _periodic_phase(tau, sn0, cn0, dn0, n, k2, kp2, use_q)
     else:                                             # separatrix, k^2 = 1: tanh / sech
-        j = np.zeros_like(tau)
-        sn_r = sn = np.tanh(tau)
-        ex = np.exp(-np.abs(tau))
-        cn_r = cn = 2.0 * ex / (1.0 + ex * ex)        # sech, without overflow
-        dn = cn
-        p = -n
-        sp = float(np.sqrt(p))
-        # P(u) = (u + sqrt(p) atan(sqrt(p) tanh u)) / (1 + p);  Q = P - u
-
-        def sep(u, tanh_u):
-            if use_q:
-                return (sp * np.arctan(sp * tanh_u) - p * u) / (1.0 + p)
-            return (u + sp * np.arctan(sp * tanh_u)) / (1.0 + p)
-        G = sep(tau, sn)
-        G0 = sep(tau0, np.tanh(tau0))
+        j, sn_r, cn_r, sn, cn, dn, G, G0 = _separatrix_phase(tau, tau0, n, use_q)
 
     m = np.stack([sigma * A_a * cn, s_b * A_b * sn, s * A_c * dn], axis=-1)
     phi = (L / Ia if use_q else L / Ic) * t + C * (G - G0)

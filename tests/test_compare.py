@@ -9,9 +9,10 @@ from pathlib import Path
 import pytest
 
 from freebody.cli import main
-from freebody.results.compare import compare, load_side, resolve_tolerances
-from freebody.results.compare_tolerances import DEFAULT_RTOL, ORIENTATION_ATOL_RAD
+from freebody.results.compare import compare, default_tolerances, load_side, resolve_tolerances
 from freebody.testing import assert_no_regression
+from freebody.tolerances import COMPARE_DEFAULT_RTOL as DEFAULT_RTOL
+from freebody.tolerances import COMPARE_ORIENTATION_ATOL_RAD as ORIENTATION_ATOL_RAD
 
 WORSE = 1.5  # a metric 50 % worse: far beyond the default 1 %
 NOISE = 1.0 + 1e-6  # a change far inside every default tolerance (round-off on another machine)
@@ -115,6 +116,12 @@ def test_engine_versions_side_by_side(run_dir, baseline, tmp_path, capsys):
     main(["compare", str(baseline), str(_current(run_dir, tmp_path, upgrade))])
     row = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("reference ")]
     assert "9.9.9" in row[0] and "<- changed" in row[0]
+
+
+def test_every_metric_has_a_default_tolerance():
+    from freebody.run.metrics import METRIC_NAMES
+
+    assert set(default_tolerances()) == set(METRIC_NAMES)
 
 
 def test_tolerances_from_file_and_command_line(run_dir, baseline, tmp_path):

@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 
 from freebody.cli import main
-from freebody.run.convergence import ORIENTATION_FLOOR_RAD, fit_orders
+from freebody.run.convergence import fit_orders
+from freebody.tolerances import CONVERGENCE_ORIENTATION_FLOOR_RAD as ORIENTATION_FLOOR_RAD
 from freebody.report.render import write_reports
 
 ORDER_ATOL = 1e-9  # errors made exactly C dt^p: the least-squares fit returns p to round-off

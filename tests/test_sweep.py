@@ -23,6 +23,7 @@ UNIT_QUATERNION_ATOL = 1e-15  # |q| - 1 of a quaternion normalised once
 def _without_wall_times(doc: dict) -> dict:
     doc = dict(doc)
     doc.pop("wall_time_s")
+    doc.pop("created")  # to the second: two sweeps may straddle one
     doc["runs"] = [{k: v for k, v in r.items() if k != "wall_time_s"} for r in doc["runs"]]
     return doc
 

@@ -30,7 +30,7 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..tools.bench import BenchConfig, format_text, run_bench
-    from ..results.document import write_json_atomic
+    from ..results.io import write_json_atomic
 
     if args.repeats is not None and args.repeats < 1:
         raise InputError(f"--repeats: must be an integer >= 1, got {args.repeats}")

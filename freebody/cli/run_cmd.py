@@ -6,7 +6,7 @@ ORDER = 20
 from pathlib import Path
 
 from ..input.casefile import bundled_case_paths, load_case
-from ..run import expand, select_engines
+from ..run import Status, expand, select_engines
 from ..run.suite import run_specs
 from ..report.summary import summary_table
 from .argtypes import positive_float as _positive_float, positive_int as _positive_int
@@ -66,4 +66,4 @@ def run(args) -> int:
     print(f"\nresults: {out_dir / 'results.json'}")
     for path in reports:
         print(f"report: {path}")
-    return 1 if any(r["status"] == "failed" for r in doc["runs"]) else 0
+    return 1 if any(r["status"] == Status.FAILED for r in doc["runs"]) else 0

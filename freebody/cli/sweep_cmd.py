@@ -6,6 +6,7 @@ ORDER = 40
 
 from pathlib import Path
 
+from .. import tolerances as tol
 from ..errors import InputError
 from .argtypes import nonnegative_int as _nonneg_int, positive_float as _positive_float
 
@@ -43,7 +44,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     import math
 
-    from ..run import select_engines
+    from ..run import Status, select_engines
     from ..tools.sweep import SweepSettings, sweep
 
     if args.count < 1:
@@ -52,7 +53,7 @@ def run(args) -> int:
         raise InputError(f"--max-spin: must be a finite number >= 0, got {args.max_spin}")
     dts = tuple(args.dt or (0.01,))
     for d in dts:
-        if args.duration < d * (1 - 1e-12):
+        if args.duration < d * (1 - tol.DURATION_VS_DT_RTOL):
             raise InputError(f"--duration: {args.duration} s is shorter than dt = {d} s")
     settings = SweepSettings(seed=args.seed, count=args.count, duration=args.duration, dts=dts,
                              max_spin=args.max_spin, gravity=args.gravity)
@@ -61,4 +62,4 @@ def run(args) -> int:
                 precisions=args.precision)
     print(out.report)
     print(f"\nresults: {Path(args.out) / 'sweep.json'}")
-    return 1 if any(r["status"] == "failed" for r in out.document["runs"]) else 0
+    return 1 if any(r["status"] == Status.FAILED for r in out.document["runs"]) else 0

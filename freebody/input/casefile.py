@@ -196,7 +196,7 @@ def parse_case(data: dict, source: str = "<case>") -> Problem:
     if "duration" in data:
         duration = c.number(data["duration"], "duration", positive=True)
         for d in dts:
-            if duration < d * (1 - 1e-12):
+            if duration < d * (1 - tol.DURATION_VS_DT_RTOL):
                 c.fail("duration", f"{duration} s is shorter than dt = {d} s")
     else:
         duration_steps = c.integer(data["duration_steps"], "duration_steps")

@@ -12,25 +12,20 @@ from pathlib import Path
 import numpy as np
 
 from ..adapters.base import REFERENCE_ENGINE
+from ..numbers import finite_or_none
 from ..reference_impl.conventions import angular_momentum, kinetic_energy, potential_energy
 from ..reference_impl.problem import Body
 from ..reference_impl.rotations import geodesic_angle
+from ..run.metrics import ORIENTATION_ERROR_MAX
+from ..run.records import STATUSES, Status
 from .summary import run_label
 
-STATUS_ORDER = ("failed", "diverged", "skipped", "ok")  # worst first
-
-
-def number(x) -> float | None:
-    """A finite float, or None for anything else (None, NaN, inf, a string, a bool)."""
-    if isinstance(x, bool) or not isinstance(x, (int, float, np.floating, np.integer)):
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
+STATUS_ORDER = (Status.FAILED, Status.DIVERGED, Status.SKIPPED, Status.OK)  # worst first
 
 
 def num(x, spec: str = ".3e") -> str:
     """A number in a fixed format (so text survives last-digit noise), '-' when not a finite number."""
-    x = number(x)
+    x = finite_or_none(x)
     return "-" if x is None else format(x, spec)
 
 
@@ -40,20 +35,20 @@ def label(run: dict) -> str:
 
 
 def metric(run: dict, key: str) -> float | None:
-    return number((run.get("metrics") or {}).get(key))
+    return finite_or_none((run.get("metrics") or {}).get(key))
 
 
 def simulated_s(run: dict) -> float | None:
     """Simulated time of a run, s: steps * dt."""
-    steps, dt = number(run.get("steps")), number(run.get("dt"))
+    steps, dt = finite_or_none(run.get("steps")), finite_or_none(run.get("dt"))
     return steps * dt if steps and dt else None
 
 
 def wall_per_simulated_s(run: dict) -> float | None:
     """Wall-clock seconds per simulated second (lower is faster); None for a run that did not run."""
-    if run.get("status") in ("skipped", "failed"):
+    if run.get("status") in (Status.SKIPPED, Status.FAILED):
         return None
-    wall, sim = number(run.get("wall_time_s")), simulated_s(run)
+    wall, sim = finite_or_none(run.get("wall_time_s")), simulated_s(run)
     return wall / sim if wall is not None and wall > 0 and sim else None
 
 
@@ -84,11 +79,11 @@ def labels(runs: list[dict]) -> list[str]:
 
 def dts(runs: list[dict]) -> list[float]:
     """Distinct time steps, descending (coarsest first)."""
-    return sorted({float(r["dt"]) for r in runs if number(r.get("dt"))}, reverse=True)
+    return sorted({float(r["dt"]) for r in runs if finite_or_none(r.get("dt"))}, reverse=True)
 
 
 def status_counts(runs: list[dict]) -> dict[str, int]:
-    return {s: sum(r.get("status") == s for r in runs) for s in ("ok", "diverged", "failed", "skipped")}
+    return {s: sum(r.get("status") == s for r in runs) for s in STATUSES}
 
 
 # --- the body of a case (for L and E from states) -------------------------------------------------
@@ -165,7 +160,7 @@ class Pair:
 
 def _final(run: dict, out_dir: Path | None) -> dict | None:
     """The final state of an ok run: its results.json final_state, else the last trajectory sample."""
-    if run.get("status") != "ok":
+    if run.get("status") != Status.OK:
         return None
     fs = run.get("final_state")
     if isinstance(fs, dict) and fs.get("quaternion_wxyz") is not None:
@@ -197,7 +192,7 @@ def pair_runs(runs: list[dict]) -> list[tuple[dict, dict]]:
     """Pairs of runs of different engines at the same dt and precision.  The reference engine is
     left out when two or more other engines ran (its relation to each engine is the
     'reproduces' column)."""
-    engines = {r["engine"] for r in runs if r.get("status") == "ok"}
+    engines = {r["engine"] for r in runs if r.get("status") == Status.OK}
     skip_ref = len(engines - {REFERENCE_ENGINE}) >= 2
     chosen = [r for r in runs if not (skip_ref and r["engine"] == REFERENCE_ENGINE)]
     out = []
@@ -233,13 +228,13 @@ def pairwise(runs: list[dict], physics: CasePhysics | None, out_dir: Path | None
         if ea is None or eb is None:
             rows.append(Pair(float(a["dt"]), label(a), label(b), None, None, None))
             continue
-        angle = number(geodesic_angle(ea[0], eb[0]))
+        angle = finite_or_none(geodesic_angle(ea[0], eb[0]))
         dL = dE = None
         if physics is not None:
             scale = 0.5 * (np.linalg.norm(ea[1]) + np.linalg.norm(eb[1]))
-            dL = number(np.linalg.norm(ea[1] - eb[1]) / scale) if scale > 0 else None
+            dL = finite_or_none(np.linalg.norm(ea[1] - eb[1]) / scale) if scale > 0 else None
             kscale = 0.5 * (ea[3] + eb[3])
-            dE = number(abs(ea[2] - eb[2]) / kscale) if kscale > 0 else None
+            dE = finite_or_none(abs(ea[2] - eb[2]) / kscale) if kscale > 0 else None
         rows.append(Pair(float(a["dt"]), label(a), label(b), angle, dL, dE))
     rows.sort(key=lambda p: (-p.dt, p.angle_rad is None, -(p.angle_rad or 0.0), p.a, p.b))
     return rows
@@ -257,9 +252,9 @@ def worst_cells(runs: list[dict]) -> dict[tuple[str, str], tuple[str, float | No
         cells.setdefault((r["case"], label(r)), []).append(r)
     out = {}
     for key, rs in cells.items():
-        status = min((r.get("status", "failed") for r in rs),
+        status = min((r.get("status", Status.FAILED.value) for r in rs),
                      key=lambda s: STATUS_ORDER.index(s) if s in STATUS_ORDER else 0)
-        vals = [metric(r, "orientation_error_max_rad") for r in rs if r.get("status") == "ok"]
+        vals = [metric(r, ORIENTATION_ERROR_MAX) for r in rs if r.get("status") == Status.OK]
         vals = [v for v in vals if v is not None]
         out[key] = (status, max(vals) if vals else None)
     return out
@@ -302,7 +297,7 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, int, float | 
         what = m.get("integrator") or (f"none (closest {m['closest']})" if m.get("closest") else "none")
         slot = acc.setdefault((label(r), what), [0, None])
         slot[0] += 1
-        d = number(m.get("max_orientation_diff_rad"))
+        d = finite_or_none(m.get("max_orientation_diff_rad"))
         if d is not None:
             slot[1] = d if slot[1] is None else max(slot[1], d)
     order = {lab: i for i, lab in enumerate(labels(runs))}
@@ -326,7 +321,7 @@ def port_comparison(runs: list[dict]) -> list[tuple]:
             rows.append((r["case"], label(r), f"{r['dt']:g}", against, v["message"], "-", "-"))
             continue
         rows.append((r["case"], label(r), f"{r['dt']:g}", against, num(v.get("max_orientation_diff_rad")),
-                     num(v.get("final_orientation_diff_rad")), num(metric(r, "orientation_error_max_rad"))))
+                     num(v.get("final_orientation_diff_rad")), num(metric(r, ORIENTATION_ERROR_MAX))))
     return rows
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from . import data as rd
 from . import markdown as md
+from ..run.records import Status
 
 CSS = """
 body { font-family: system-ui, -apple-system, 'Segoe UI', sans-serif; margin: 1.5em auto; max-width: 1400px;
@@ -47,7 +48,7 @@ def table(header, rows, status_col: int | None = None, fold: str | None = None) 
             cls = []
             if header[i] in NUMERIC:
                 cls.append("num")
-            if i == status_col or str(c) in ("diverged", "failed", "skipped"):
+            if i == status_col or str(c) in (Status.DIVERGED, Status.FAILED, Status.SKIPPED):
                 cls.append(str(c))
             attr = f' class="{" ".join(cls)}"' if cls else ""
             cells.append(f"<td{attr}>{escape(str(c))}</td>")
@@ -69,6 +70,18 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
     bytes or None; ``notes``: case -> lines about runs that could not be drawn."""
     runs = doc.get("runs") or []
     cases = rd.by_case(runs)
+    p = _head_html(doc, runs, cases, source)
+    p += _overview_html(doc, runs, figures)
+    for case, case_runs in cases.items():
+        case_pairs = (pairs or {}).get(case)
+        p += _case_html(case, case_runs, physics.get(case), convergence, case_pairs, figures,
+                        notes.get(case, []), out_dir)
+    p.append("</body></html>\n")
+    return "\n".join(p)
+
+
+def _head_html(doc: dict, runs: list[dict], cases: dict, source: str) -> list[str]:
+    """The page's head, title, provenance line, incomplete warning and case navigation."""
     counts = rd.status_counts(runs)
     p = []
     p.append("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
@@ -82,6 +95,13 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
     if doc.get("incomplete"):
         p.append('<p class="warn"><b>Incomplete:</b> the run was interrupted; only the finished runs are shown.</p>')
     p.append("<nav><b>Cases:</b> " + " ".join(f'<a href="#{anchor(c)}">{escape(c)}</a>' for c in cases) + "</nav>")
+    return p
+
+
+def _overview_html(doc: dict, runs: list[dict], figures: dict) -> list[str]:
+    """The sections over all cases: engines, heat map, convergence, speed, forced settings,
+    reproduced reference maps, ported engines."""
+    p = []
     p.append("<h2>Engines</h2>" + table(("engine", "version", "runs"), rd.engine_versions(doc)))
     p.append("<h2>Worst orientation error per case and engine run</h2>"
              '<p class="note">Colour: the largest orientation error (rad, log scale) over time and over the '
@@ -104,48 +124,52 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
     repro = rd.reproduction_summary(runs)
     p.append("<h2>Reference map each engine run reproduces</h2>" + (
         table(("engine run", "reproduces", "runs", "max difference (rad)"),
-              [(a, b, n, rd.num(d, ".1e")) for a, b, n, d in repro]) if repro
+              [(a, b, n, rd.num(max_diff, ".1e")) for a, b, n, max_diff in repro]) if repro
         else '<p class="note">No engine run was compared with the reference maps.</p>'))
     ports = rd.port_comparison(runs)
     if ports:
         p.append("<h2>Ported engines against their originals (e.g. MJX vs C MuJoCo)</h2>"
                  + table(rd.PORT_COLUMNS, ports))
+    return p
 
-    for case, case_runs in cases.items():
-        ph = physics.get(case)
-        p.append(f'<h2 id="{anchor(case)}">Case <code>{escape(case)}</code></h2>')
-        if ph is not None:
-            p.append(f"<p>{escape(ph.description)}</p><p class=\"note\">Truth: {escape(ph.truth or '?')}.</p>")
-        p.append("<h3>Runs</h3>" + table(md.RUN_COLUMNS, md.run_rows(case_runs), status_col=2))
-        bad = [r for r in case_runs if r.get("status") != "ok"]
-        if bad:
-            items = dict.fromkeys(f"{rd.label(r)} dt = {float(r['dt']):g} s: {r.get('status')}: "
-                                  f"{(r.get('message') or '').strip() or '(no message)'}" for r in bad)
-            p.append("<p>Not ok:</p><ul>" + "".join(f"<li>{escape(x)}</li>" for x in items) + "</ul>")
-        mine = [e for e in convergence if e.get("case") == case]
-        p.append("<h3>Observed order (error ~ dt<sup>p</sup>)</h3>" + (
-            table(("engine run", "metric", "order p", "dts fitted (s)", "note"), md.convergence_rows(mine)) if mine
-            else '<p class="note">No engine run of this case ran at 3 or more time steps: no order fitted.</p>'))
-        case_pairs = (pairs or {}).get(case)
-        if case_pairs is None:
-            case_pairs = rd.pairwise(case_runs, ph, out_dir)
-        p.append("<h3>Engines at the end</h3>")
-        if case_pairs:
-            p.append('<p class="note">Final states of runs of different engines: orientation angle, '
-                     "|L<sub>a</sub> - L<sub>b</sub>| / mean |L|, |E<sub>a</sub> - E<sub>b</sub>| / mean KE; "
-                     "largest angle first.</p>")
-            if ph is None:
-                p.append('<p class="note">L and E need the case\'s mass and inertia, not in this results.json '
-                         "(pass <code>--case PATH</code> to <code>freebody report</code>).</p>")
-            p.append(table(("dt (s)", "run A", "run B", "orientation (rad)", "L (rel)", "E (rel)"),
-                           [(f"{q.dt:g}", q.a, q.b, rd.num(q.angle_rad), rd.num(q.dL_rel), rd.num(q.dE_rel))
-                            for q in case_pairs], fold="engine-vs-engine differences"))
-        else:
-            p.append('<p class="note">No two engines both finished a run of this case at the same time step.</p>')
-        p.append("<h3>Errors and angular velocity against time</h3>")
-        for dt in rd.dts(case_runs):
-            p.append(img(figures.get((case, dt)), f"{case} dt={dt:g}"))
-        for line in notes.get(case, []):
-            p.append(f'<p class="note">{escape(line)}</p>')
-    p.append("</body></html>\n")
-    return "\n".join(p)
+
+def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], case_pairs: list | None,
+               figures: dict, case_notes: list[str], out_dir: Path | None) -> list[str]:
+    """One case's section: description, runs, what was not ok, observed orders, engine-vs-engine
+    differences at the end (``case_pairs``, computed here when None) and the per-dt figures.
+    ``ph``: the case's rd.CasePhysics, or None."""
+    p = []
+    p.append(f'<h2 id="{anchor(case)}">Case <code>{escape(case)}</code></h2>')
+    if ph is not None:
+        p.append(f"<p>{escape(ph.description)}</p><p class=\"note\">Truth: {escape(ph.truth or '?')}.</p>")
+    p.append("<h3>Runs</h3>" + table(md.RUN_COLUMNS, md.run_rows(case_runs), status_col=2))
+    bad = [r for r in case_runs if r.get("status") != Status.OK]
+    if bad:
+        items = dict.fromkeys(f"{rd.label(r)} dt = {float(r['dt']):g} s: {r.get('status')}: "
+                              f"{(r.get('message') or '').strip() or '(no message)'}" for r in bad)
+        p.append("<p>Not ok:</p><ul>" + "".join(f"<li>{escape(x)}</li>" for x in items) + "</ul>")
+    mine = [e for e in convergence if e.get("case") == case]
+    p.append("<h3>Observed order (error ~ dt<sup>p</sup>)</h3>" + (
+        table(("engine run", "metric", "order p", "dts fitted (s)", "note"), md.convergence_rows(mine)) if mine
+        else '<p class="note">No engine run of this case ran at 3 or more time steps: no order fitted.</p>'))
+    if case_pairs is None:
+        case_pairs = rd.pairwise(case_runs, ph, out_dir)
+    p.append("<h3>Engines at the end</h3>")
+    if case_pairs:
+        p.append('<p class="note">Final states of runs of different engines: orientation angle, '
+                 "|L<sub>a</sub> - L<sub>b</sub>| / mean |L|, |E<sub>a</sub> - E<sub>b</sub>| / mean KE; "
+                 "largest angle first.</p>")
+        if ph is None:
+            p.append('<p class="note">L and E need the case\'s mass and inertia, not in this results.json '
+                     "(pass <code>--case PATH</code> to <code>freebody report</code>).</p>")
+        p.append(table(("dt (s)", "run A", "run B", "orientation (rad)", "L (rel)", "E (rel)"),
+                       [(f"{q.dt:g}", q.a, q.b, rd.num(q.angle_rad), rd.num(q.dL_rel), rd.num(q.dE_rel))
+                        for q in case_pairs], fold="engine-vs-engine differences"))
+    else:
+        p.append('<p class="note">No two engines both finished a run of this case at the same time step.</p>')
+    p.append("<h3>Errors and angular velocity against time</h3>")
+    for dt in rd.dts(case_runs):
+        p.append(img(figures.get((case, dt)), f"{case} dt={dt:g}"))
+    for line in case_notes:
+        p.append(f'<p class="note">{escape(line)}</p>')
+    return p

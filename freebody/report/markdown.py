@@ -9,6 +9,9 @@ from pathlib import Path
 
 from . import data as rd
 from ..run.convergence import SHORT_NAMES
+from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL,
+                           ORIENTATION_ERROR_MAX, POSITION_ERROR_MAX)
+from ..run.records import Status
 
 RUN_COLUMNS = ("engine run", "dt (s)", "status", "orientation max (rad)", "orientation final (rad)",
                "L max (rel)", "E max (rel)", "position max (m)", "wall s / sim s", "reproduces")
@@ -29,11 +32,11 @@ def run_rows(runs: list[dict]) -> list[tuple]:
     rows = []
     for r in sorted(runs, key=lambda r: (order[rd.label(r)], -float(r["dt"]))):
         rows.append((rd.label(r), f"{float(r['dt']):g}", r.get("status", "?"),
-                     rd.num(rd.metric(r, "orientation_error_max_rad")),
-                     rd.num(rd.metric(r, "orientation_error_final_rad")),
-                     rd.num(rd.metric(r, "angular_momentum_error_max_rel")),
-                     rd.num(rd.metric(r, "energy_error_max_rel")),
-                     rd.num(rd.metric(r, "position_error_max_m")),
+                     rd.num(rd.metric(r, ORIENTATION_ERROR_MAX)),
+                     rd.num(rd.metric(r, ORIENTATION_ERROR_FINAL)),
+                     rd.num(rd.metric(r, ANGULAR_MOMENTUM_ERROR_MAX_REL)),
+                     rd.num(rd.metric(r, ENERGY_ERROR_MAX_REL)),
+                     rd.num(rd.metric(r, POSITION_ERROR_MAX)),
                      rd.num(rd.wall_per_simulated_s(r), ".2e"), rd.reproduces(r)))
     return rows
 
@@ -53,7 +56,7 @@ def convergence_rows(entries: list[dict]) -> list[tuple]:
 def not_ok_lines(runs: list[dict]) -> list[str]:
     out = []
     for r in runs:
-        if r.get("status") != "ok":
+        if r.get("status") != Status.OK:
             msg = (r.get("message") or "").strip() or "(no message)"
             out.append(f"- `{rd.label(r)}` dt = {float(r['dt']):g} s: **{r.get('status')}**: {msg}")
     return list(dict.fromkeys(out))
@@ -81,7 +84,7 @@ def front_matter(doc: dict, source: str) -> list[str]:
         row = [lab]
         for c in cases:
             status, v = cells.get((c, lab), ("", None))
-            row.append("" if not status else (rd.num(v) if status == "ok" else status))
+            row.append("" if not status else (rd.num(v) if status == Status.OK else status))
         rows.append(row)
     out += [md_table(["engine run", *cases], rows) if rows else "No runs.", ""]
 

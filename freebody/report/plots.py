@@ -12,13 +12,17 @@ from pathlib import Path
 import numpy as np
 
 from . import data as rd
+from .. import tolerances as tol
+from ..numbers import finite_or_none
 from ..run.convergence import FITTED_METRICS, MIN_POINTS
+from ..run.metrics import ORIENTATION_ERROR_MAX
+from ..run.records import Status
 
 DPI = 90
 MAX_POINTS = 800  # samples drawn per line: more is invisible at this size, and slow
 LOG_PANEL_TOP = 1e3  # error panels stop here: beyond, a run has blown up (its status says so)
-STATUS_COLOURS = {"diverged": "#222222", "failed": "#b2182b", "skipped": "#d9d9d9"}
-STATUS_TEXT = {"diverged": "div", "failed": "fail", "skipped": "skip"}
+STATUS_COLOURS = {Status.DIVERGED: "#222222", Status.FAILED: "#b2182b", Status.SKIPPED: "#d9d9d9"}
+STATUS_TEXT = {Status.DIVERGED: "div", Status.FAILED: "fail", Status.SKIPPED: "skip"}
 TRUTH_STYLE = dict(color="black", linestyle="--", linewidth=1.2)
 
 
@@ -88,7 +92,7 @@ def _decade(v: float, _pos=None) -> str:
     if not (v > 0 and np.isfinite(v)):
         return ""
     e = np.log10(v)
-    return f"1e{int(round(e))}" if abs(e - round(e)) < 1e-9 else f"{v:g}"
+    return f"1e{int(round(e))}" if abs(e - round(e)) < tol.PLOT_DECADE_TICK_ATOL else f"{v:g}"
 
 
 def _empty(ax, text: str) -> None:
@@ -109,7 +113,7 @@ def heatmap(runs: list[dict]) -> bytes | None:
     cells = rd.worst_cells(runs)
     data = np.full((len(cases), len(labs)), np.nan)
     for (c, lab), (status, v) in cells.items():
-        if status == "ok" and v is not None:
+        if status == Status.OK and v is not None:
             data[cases.index(c), labs.index(lab)] = max(v, 1e-16)
     label_in = 0.045 * max(map(len, labs)) * 0.87 + 0.3  # rotated tick labels, inches
     case_in = 0.07 * max(map(len, cases)) + 0.3
@@ -136,10 +140,10 @@ def heatmap(runs: list[dict]) -> bytes | None:
         ax.imshow(np.zeros_like(data), cmap="Greys", vmin=0, vmax=1, aspect="auto")
     for (c, lab), (status, v) in cells.items():
         i, j = cases.index(c), labs.index(lab)
-        if status != "ok":
+        if status != Status.OK:
             ax.add_patch(_cell_patch(j, i, STATUS_COLOURS.get(status, "#ff00ff")))
             ax.text(j, i, STATUS_TEXT.get(status, status), ha="center", va="center", fontsize=7,
-                    color="white" if status in ("diverged", "failed") else "black")
+                    color="white" if status in (Status.DIVERGED, Status.FAILED) else "black")
         elif v is not None:
             rgba = cmap(norm(max(v, 1e-16))) if cmap is not None else (1, 1, 1, 1)
             light = 0.299 * rgba[0] + 0.587 * rgba[1] + 0.114 * rgba[2] > 0.5
@@ -200,7 +204,7 @@ def _convergence_rows(runs: list[dict], entries: list[dict], cases: list[str]) -
             orders = []
             for ax, m in zip(axes, FITTED_METRICS):
                 x, y = _finite_xy([r["dt"] for r in mine],
-                                  [rd.metric(r, m) if r.get("status") == "ok" else None for r in mine],
+                                  [rd.metric(r, m) if r.get("status") == Status.OK else None for r in mine],
                                   log_y=True, log_x=True)
                 h = ax.plot(x, y, marker="o", markersize=3, color=col[lab], linestyle=ls, linewidth=1)[0]
                 e = fits.get((case, lab, m))
@@ -248,7 +252,7 @@ def _per_case_grid(runs: list[dict], cases: list[str], x_of, xlabel: str, title:
         for lab in rd.labels(case_runs):
             mine = sorted((r for r in case_runs if rd.label(r) == lab), key=lambda r: float(r["dt"]))
             x, y = _finite_xy([x_of(r) for r in mine],
-                              [rd.metric(r, "orientation_error_max_rad") if r.get("status") == "ok" else None
+                              [rd.metric(r, ORIENTATION_ERROR_MAX) if r.get("status") == Status.OK else None
                                for r in mine], log_x=True, log_y=True)
             if len(x):
                 handles[lab] = ax.plot(x, y, marker="o", markersize=3, linewidth=1, color=col[lab],
@@ -290,16 +294,41 @@ def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | No
     """One 4-panel figure for the runs of a case at one dt: orientation error (log), energy error
     (log), angular momentum error (log), world angular velocity components vs the truth.
     Returns (PNG bytes or None, notes about runs that could not be drawn)."""
+    loaded, truth_shown, notes = _load_case_runs(runs, physics, out_dir)
+    if not loaded:
+        return None, notes
+    fig = _figure(11.0, 7.0 + _legend_in(len(loaded)))
+    axes = [fig.add_subplot(2, 2, k + 1) for k in range(4)]
+    handles = _draw_case_runs(axes, loaded, colours(all_labels), all_labels)
+    if truth_shown is not None:
+        _draw_truth_angular_velocity(axes[3], truth_shown)
+    _style_case_panels(axes, physics)
+    fig.suptitle(f"{case}, dt = {dt:g} s", fontsize=10)
+    if handles:
+        labs = [lab for lab in all_labels if lab in handles]
+        fig.legend([handles[lab] for lab in labs], labs, loc="lower center", ncol=4, fontsize=7, frameon=False)
+    h = fig.get_figheight()
+    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.55 / h, bottom=(_legend_in(len(handles)) + 0.5) / h,
+                        wspace=0.2, hspace=0.4)
+    return png_bytes(fig), notes
+
+
+def _load_case_runs(runs: list[dict], physics: rd.CasePhysics | None, out_dir: Path):
+    """The drawable runs of case_dt with their error series, read from their trajectory files.
+
+    Returns (loaded, truth_shown, notes): loaded holds (run, t, keep, orientation error, metric
+    series or None, world angular velocity) per ok or diverged run with a readable trajectory and
+    truth, keep masking the samples after a divergence; truth_shown is the longest truth (a
+    diverged run's is cut short), or None; notes say why a run could not be drawn."""
     from ..run.metrics import series
     from ..reference_impl.rotations import geodesic_angle
     from ..results.document import load_trajectory
 
-    col = colours(all_labels)
     notes = []
     loaded = []
     truth_shown = None
     for r in runs:
-        if r.get("status") not in ("ok", "diverged") or not r.get("trajectory"):
+        if r.get("status") not in (Status.OK, Status.DIVERGED) or not r.get("trajectory"):
             continue
         try:
             tr, truth = load_trajectory(Path(out_dir) / r["trajectory"])
@@ -310,7 +339,7 @@ def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | No
             notes.append(f"{rd.label(r)}: no truth in {r['trajectory']}")
             continue
         n = min(len(tr), len(truth))
-        t_end = rd.number(r.get("diverged_at_s"))
+        t_end = finite_or_none(r.get("diverged_at_s"))
         keep = np.ones(n, bool) if t_end is None else (tr.t[:n] <= t_end)
         with np.errstate(all="ignore"):
             ori = geodesic_angle(truth.quaternion_wxyz[:n], tr.quaternion_wxyz[:n])
@@ -318,12 +347,12 @@ def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | No
         loaded.append((r, tr.t[:n], keep, ori, s, tr.angular_velocity[:n]))
         if truth_shown is None or len(truth) > len(truth_shown):  # a diverged run's truth is cut short
             truth_shown = truth
-    if not loaded:
-        return None, notes
-    fig = _figure(11.0, 7.0 + _legend_in(len(loaded)))
-    axes = [fig.add_subplot(2, 2, k + 1) for k in range(4)]
-    titles = ("orientation error (rad)", "energy error (rel. to max KE)",
-              "angular momentum error (rel. to max |L|)", "world angular velocity (rad/s); truth dashed")
+    return loaded, truth_shown, notes
+
+
+def _draw_case_runs(axes: list, loaded: list, col: dict, all_labels: list[str]) -> dict:
+    """Each loaded run's three error curves and its angular velocity components on case_dt's
+    axes; returns {label: line handle} for the legend."""
     handles = {}
     for r, t, keep, ori, s, w in loaded:
         lab = rd.label(r)
@@ -340,17 +369,28 @@ def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | No
         for k in range(3):
             x, yy = _finite_xy(t[keep][sl], w[keep][sl, k])
             axes[3].plot(x, yy, color=c, linestyle=ls, linewidth=1, alpha=0.8)
-    if truth_shown is not None:
-        tt = truth_shown.t
-        sl = _decimate(len(tt))
-        for k in range(3):
-            x, yy = _finite_xy(tt[sl], truth_shown.angular_velocity[sl, k])
-            axes[3].plot(x, yy, **TRUTH_STYLE)
-        w_true = truth_shown.angular_velocity[np.all(np.isfinite(truth_shown.angular_velocity), axis=1)]
-        if len(w_true):
-            lo, hi = float(w_true.min()), float(w_true.max())
-            pad = max(0.25 * (hi - lo), 0.1 * max(abs(lo), abs(hi)), 1e-3)
-            axes[3].set_ylim(lo - pad, hi + pad)  # a blown-up run must not flatten the truth
+    return handles
+
+
+def _draw_truth_angular_velocity(ax, truth) -> None:
+    """The truth's world angular velocity components, dashed, with the y range fitted to them."""
+    tt = truth.t
+    sl = _decimate(len(tt))
+    for k in range(3):
+        x, yy = _finite_xy(tt[sl], truth.angular_velocity[sl, k])
+        ax.plot(x, yy, **TRUTH_STYLE)
+    w_true = truth.angular_velocity[np.all(np.isfinite(truth.angular_velocity), axis=1)]
+    if len(w_true):
+        lo, hi = float(w_true.min()), float(w_true.max())
+        pad = max(0.25 * (hi - lo), 0.1 * max(abs(lo), abs(hi)), 1e-3)
+        ax.set_ylim(lo - pad, hi + pad)  # a blown-up run must not flatten the truth
+
+
+def _style_case_panels(axes: list, physics: rd.CasePhysics | None) -> None:
+    """Titles, labels and grids of case_dt's panels; the three error panels on log axes capped at
+    LOG_PANEL_TOP, or a note where there is nothing to draw."""
+    titles = ("orientation error (rad)", "energy error (rel. to max KE)",
+              "angular momentum error (rel. to max |L|)", "world angular velocity (rad/s); truth dashed")
     for k, (ax, title) in enumerate(zip(axes, titles)):
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("t (s)", fontsize=8)
@@ -364,11 +404,3 @@ def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | No
             else:
                 _empty(ax, "needs the case's mass and inertia" if physics is None and k in (1, 2)
                        else "no positive finite error to draw on a log axis")
-    fig.suptitle(f"{case}, dt = {dt:g} s", fontsize=10)
-    if handles:
-        labs = [lab for lab in all_labels if lab in handles]
-        fig.legend([handles[lab] for lab in labs], labs, loc="lower center", ncol=4, fontsize=7, frameon=False)
-    h = fig.get_figheight()
-    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.55 / h, bottom=(_legend_in(len(handles)) + 0.5) / h,
-                        wspace=0.2, hspace=0.4)
-    return png_bytes(fig), notes

@@ -6,36 +6,11 @@ which re-renders both from results.json and the trajectory files without running
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 from . import data as rd
 from ..run.convergence import fit_orders
-from ..results.document import write_json_atomic
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write text via a temporary file in the same directory and a rename.  The file gets the
-    permissions a plain open() would give it (mkstemp's are owner-only)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+from ..results.io import write_json_atomic, write_text_atomic
 
 
 def augment(doc: dict, problems: dict | None = None) -> dict:

@@ -1,6 +1,10 @@
 """The plain-text summary table printed by ``freebody run``."""
 from __future__ import annotations
 
+from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX,
+                           POSITION_ERROR_MAX)
+from ..run.records import STATUSES, Status
+
 
 def fmt(x, spec: str = ".3e") -> str:
     """A number in a fixed format, '-' for None (undefined or not applicable)."""
@@ -34,20 +38,20 @@ def summary_table(runs: list[dict]) -> str:
                                                                     else vs.get("message", "-"))
         status = r["status"]
         rows.append((r["case"], run_label(r), f"{r['dt']:g}", status,
-                     fmt(m.get("orientation_error_max_rad")), fmt(m.get("angular_momentum_error_max_rel")),
-                     fmt(m.get("energy_error_max_rel")), fmt(m.get("position_error_max_m")), repro))
+                     fmt(m.get(ORIENTATION_ERROR_MAX)), fmt(m.get(ANGULAR_MOMENTUM_ERROR_MAX_REL)),
+                     fmt(m.get(ENERGY_ERROR_MAX_REL)), fmt(m.get(POSITION_ERROR_MAX)), repro))
     widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
     lines = ["  ".join(f"{h:<{w}}" for h, w in zip(header, widths)).rstrip()]
     lines.append("  ".join("-" * w for w in widths))
     for row in rows:
         lines.append("  ".join(f"{c:<{w}}" for c, w in zip(row, widths)).rstrip())
     notes = [f"  {r['case']} {run_label(r)} dt={r['dt']:g}: {r['status']}: {r['message']}"
-             for r in runs if r["status"] != "ok" and r.get("message")]
+             for r in runs if r["status"] != Status.OK and r.get("message")]
     if notes:
         lines.append("")
         lines.append("not ok:")
         lines.extend(dict.fromkeys(notes))
-    counts = {s: sum(r["status"] == s for r in runs) for s in ("ok", "diverged", "failed", "skipped")}
+    counts = {s: sum(r["status"] == s for r in runs) for s in STATUSES}
     lines.append("")
     lines.append(", ".join(f"{n} {s}" for s, n in counts.items()) + f" ({len(runs)} runs)")
     return "\n".join(lines)

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from .document import write_json_atomic
+from .io import write_json_atomic
 
 
 def make_baseline(doc: dict, source: str) -> dict:

@@ -5,7 +5,7 @@ Runs are matched by (case, engine, integrator, precision, dt).  A *regression* i
 - a run of the baseline missing from the current results;
 - a run whose status got worse (ok > diverged > failed; a run with a result that is now
   ``skipped`` no longer runs);
-- a metric (see :data:`freebody.results.compare_tolerances.COMPARED_METRICS`) worse beyond its tolerance,
+- a metric (see :data:`COMPARED_METRICS`) worse beyond its tolerance,
   ``current > baseline + atol + rtol |baseline|``, or now undefined, in runs of the same status.
 
 Improvements beyond the tolerance, status changes for the better and runs new in the current
@@ -15,17 +15,38 @@ regressed, 1 something regressed, 2 unusable input (:class:`~freebody.errors.Inp
 from __future__ import annotations
 
 import difflib
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from . import compare_tolerances as ct
+from .. import tolerances as tol
 from ..errors import InputError
+from ..numbers import finite_or_none
 from .document import load_results
 from ..report.summary import run_label
+from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_ABS, ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_ABS,
+                           ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL, ORIENTATION_ERROR_MAX,
+                           ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, POSITION_ERROR_MAX,
+                           ROTATION_ORTHONORMALITY_ERROR_MAX)
+from ..run.records import Status
 
-STATUS_RANK = {"ok": 3, "diverged": 2, "failed": 1}  # skipped: not measured (no rank)
+STATUS_RANK = {Status.OK: 3, Status.DIVERGED: 2, Status.FAILED: 1}  # skipped: not measured (no rank)
+
+# Default absolute tolerance of each compared metric, in the metric's unit (the values and their
+# reasons: the regression-gate section of freebody.tolerances); every metric's default rtol is
+# tol.COMPARE_DEFAULT_RTOL.
+METRIC_ATOL = {
+    ORIENTATION_ERROR_MAX: tol.COMPARE_ORIENTATION_ATOL_RAD,
+    ORIENTATION_ERROR_FINAL: tol.COMPARE_ORIENTATION_ATOL_RAD,
+    ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE: tol.COMPARE_ORIENTATION_ATOL_RAD,
+    ANGULAR_MOMENTUM_ERROR_MAX_REL: tol.COMPARE_MOMENTUM_ATOL_REL,
+    ANGULAR_MOMENTUM_ERROR_MAX_ABS: tol.COMPARE_MOMENTUM_ATOL_ABS,
+    ENERGY_ERROR_MAX_REL: tol.COMPARE_ENERGY_ATOL_REL,
+    ENERGY_ERROR_MAX_ABS: tol.COMPARE_ENERGY_ATOL_ABS_J,
+    POSITION_ERROR_MAX: tol.COMPARE_POSITION_ATOL_M,
+    ROTATION_ORTHONORMALITY_ERROR_MAX: tol.COMPARE_ORTHONORMALITY_ATOL,
+}
+COMPARED_METRICS = tuple(METRIC_ATOL)  # wall time is never compared: it measures the machine
 
 
 @dataclass(frozen=True)
@@ -99,27 +120,21 @@ def load_side(source, role: str) -> dict:
     return load_results(source, role)
 
 
-def _finite(x) -> float | None:
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
 def run_key(run: dict) -> tuple:
-    """(case, engine, integrator, precision, dt): dt rounded to 12 significant digits."""
+    """(case, engine, integrator, precision, dt): dt rounded to tol.COMPARE_DT_SIGNIFICANT_DIGITS (12)
+    significant digits."""
     return (run["case"], run["engine"], run["integrator"], run.get("precision") or "float64",
-            float(f"{float(run['dt']):.12g}"))
+            float(f"{float(run['dt']):.{tol.COMPARE_DT_SIGNIFICANT_DIGITS}g}"))
 
 
 # --- tolerances -----------------------------------------------------------------------------------
 
 def default_tolerances() -> dict[str, Tolerance]:
-    return {m: Tolerance(ct.DEFAULT_RTOL, a) for m, a in ct.METRIC_ATOL.items()}
+    return {m: Tolerance(tol.COMPARE_DEFAULT_RTOL, a) for m, a in METRIC_ATOL.items()}
 
 
 def _tol_value(value, where: str) -> float:
-    x = _finite(value)
+    x = finite_or_none(value)
     if x is None or x < 0:
         raise InputError(f"{where}: must be a finite number >= 0, got {value!r}")
     return x
@@ -133,9 +148,10 @@ def _unknown(where: str, dotted: str, key: str, known, kind: str = "key") -> Inp
 
 def resolve_tolerances(path: str | Path | None = None, rtol: float | None = None,
                        atol: float | None = None) -> dict[str, Tolerance]:
-    """Per-metric tolerances.  From lowest to highest precedence: the defaults of
-    :mod:`freebody.results.compare_tolerances`; the file's top-level ``rtol``/``atol`` (every metric); the
-    command line's ``--rtol``/``--atol`` (every metric); the file's ``[metrics.NAME]`` tables.
+    """Per-metric tolerances.  From lowest to highest precedence: the defaults (:data:`METRIC_ATOL`
+    and ``COMPARE_DEFAULT_RTOL`` of :mod:`freebody.tolerances`); the file's top-level
+    ``rtol``/``atol`` (every metric); the command line's ``--rtol``/``--atol`` (every metric); the
+    file's ``[metrics.NAME]`` tables.
 
     File format (TOML)::
 
@@ -164,7 +180,7 @@ def resolve_tolerances(path: str | Path | None = None, rtol: float | None = None
                     raise InputError(f"--tolerances {p}: metrics: must be a table of [metrics.NAME] tables")
                 for m, spec in v.items():
                     if m not in tols:
-                        raise _unknown(f"--tolerances {p}", f"metrics.{m}", m, ct.COMPARED_METRICS, "metric")
+                        raise _unknown(f"--tolerances {p}", f"metrics.{m}", m, COMPARED_METRICS, "metric")
                     if not isinstance(spec, dict):
                         raise InputError(f"--tolerances {p}: metrics.{m}: must be a table with rtol and/or atol")
                     for sk, sv in spec.items():
@@ -221,30 +237,30 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
         matched += 1
         bs, cs = b.get("status"), c.get("status")
         if bs != cs:
-            if bs == "skipped":
+            if bs == Status.SKIPPED:
                 verdict = "changed"
-            elif cs == "skipped" or STATUS_RANK.get(cs, 0) < STATUS_RANK.get(bs, 0):
+            elif cs == Status.SKIPPED or STATUS_RANK.get(cs, 0) < STATUS_RANK.get(bs, 0):
                 verdict = "regressed"
             else:
                 verdict = "improved"
             changes.append(Change(key, lab, "status", bs, cs, verdict))
             continue
         bm, cm = b.get("metrics") or {}, c.get("metrics") or {}
-        for m, tol in tols.items():
-            bv = _finite(bm.get(m))
-            cv = _finite(cm.get(m))
+        for m, mt in tols.items():
+            bv = finite_or_none(bm.get(m))
+            cv = finite_or_none(cm.get(m))
             if bv is None:
                 if cv is not None:
                     changes.append(Change(key, lab, m, None, cv, "changed"))
                 continue
             if cv is None:
                 changes.append(Change(key, lab, m, bv, None, "regressed"))
-            elif cv > tol.limit(bv):
-                changes.append(Change(key, lab, m, bv, cv, "regressed", tol.limit(bv)))
-            elif cv < tol.floor(bv):
-                changes.append(Change(key, lab, m, bv, cv, "improved", tol.limit(bv)))
+            elif cv > mt.limit(bv):
+                changes.append(Change(key, lab, m, bv, cv, "regressed", mt.limit(bv)))
+            elif cv < mt.floor(bv):
+                changes.append(Change(key, lab, m, bv, cv, "improved", mt.limit(bv)))
             else:
-                changes.append(Change(key, lab, m, bv, cv, "same", tol.limit(bv)))
+                changes.append(Change(key, lab, m, bv, cv, "same", mt.limit(bv)))
     for key, c in c_runs.items():
         if key not in b_runs:
             changes.append(Change(key, f"{key[0]} {run_label({**c, 'precision': key[3]})}", "run", None,

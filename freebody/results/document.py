@@ -12,11 +12,8 @@ ignore keys they do not know.  A trajectory file (npz) holds the run's arrays an
 """
 from __future__ import annotations
 
-import json
 import math
-import os
 import platform
-import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -25,62 +22,32 @@ import numpy as np
 from .. import __version__
 from ..errors import InputError
 from ..reference_impl.conventions import Trajectory
+from .io import read_json, write_npz_atomic
 
 SCHEMA_VERSION = 1
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
 
 
-def _sanitize(obj):
-    """Replace non-finite floats by None, numpy scalars/arrays by plain Python, recursively."""
-    if isinstance(obj, dict):
-        return {str(k): _sanitize(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_sanitize(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _sanitize(obj.tolist())
-    if isinstance(obj, np.generic):
-        return _sanitize(obj.item())
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
-def write_json_atomic(path: Path, data: dict) -> None:
-    """Write JSON (sorted keys, non-finite -> null) via a temporary file and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_sanitize(data), sort_keys=True, indent=1, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; a results file is an ordinary file
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+def document_header(schema_version: int, engines: dict[str, str | None] | None = None, **fields) -> dict:
+    """The fields every freebody JSON document (results, sweep, bench, inertia) opens with:
+    ``schema_version`` (that of the document's kind), ``freebody_version``, ``created`` (UTC, to the
+    second), ``platform`` (OS, machine, Python) and, if given, ``engines`` {name: version or None};
+    then ``fields`` in their order (a field may replace one of these, e.g. bench's detailed platform)."""
+    doc = {
+        "schema_version": schema_version,
+        "freebody_version": __version__,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "platform": f"{platform.system()} {platform.machine()} Python {platform.python_version()}",
+    }
+    if engines is not None:
+        doc["engines"] = engines
+    doc.update(fields)
+    return doc
 
 
 def results_document(runs: list[dict], engines: dict[str, str | None], incomplete: bool = False,
                      extra: dict | None = None) -> dict:
-    doc = {
-        "schema_version": SCHEMA_VERSION,
-        "freebody_version": __version__,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "platform": f"{platform.system()} {platform.machine()} Python {platform.python_version()}",
-        "engines": engines,
-        "incomplete": incomplete,
-        "runs": runs,
-    }
+    doc = document_header(SCHEMA_VERSION, engines, incomplete=incomplete, runs=runs)
     doc.update(extra or {})
     return doc
 
@@ -116,20 +83,6 @@ def save_trajectory(out_dir: Path, relname: str, tr: Trajectory, truth: Trajecto
     write_npz_atomic(path, arrays)
 
 
-def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True) -> None:
-    """Write arrays to an npz file via a temporary file (``tmp*.npz``) in the same folder and a rename."""
-    fd, tmp = tempfile.mkstemp(dir=Path(path).parent, suffix=".npz")
-    os.close(fd)
-    try:
-        os.chmod(tmp, 0o666 & ~_umask())
-        (np.savez_compressed if compressed else np.savez)(tmp, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def load_trajectory(path: Path) -> tuple[Trajectory, Trajectory | None]:
     """(run trajectory, truth trajectory or None) from a trajectory file."""
     with np.load(path) as z:
@@ -159,17 +112,7 @@ def load_results(source, role: str = "") -> dict:
         if not (p / "results.json").is_file():
             raise InputError(f"{prefix}{p}: no results.json in this directory (run freebody run --out {p})")
         p = p / "results.json"
-    try:
-        text = p.read_text()
-    except FileNotFoundError:
-        raise InputError(f"{prefix}{p}: no such file") from None
-    except OSError as e:
-        raise InputError(f"{prefix}{p}: cannot read: {e.strerror or e}") from None
-    try:
-        doc = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise InputError(f"{prefix}{p}: not valid JSON: {e.msg} (line {e.lineno}, column {e.colno})") from None
-    return check_results(doc, f"{prefix}{p}")
+    return check_results(read_json(p, f"{prefix}{p}"), f"{prefix}{p}")
 
 
 def check_results(doc, where: str) -> dict:

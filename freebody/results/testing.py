@@ -19,7 +19,7 @@ def assert_no_regression(baseline: str | Path | dict, current: str | Path | dict
 
     baseline, current : a baseline file, a results.json, a run directory, or a loaded results dict.
     rtol, atol, tolerances : as ``freebody compare --rtol/--atol/--tolerances`` (defaults: the
-        constants of :mod:`freebody.results.compare_tolerances`).
+        regression-gate constants of :mod:`freebody.tolerances`).
     Returns the :class:`freebody.results.compare.Comparison` when nothing regressed.  Unusable input raises
     :class:`freebody.errors.InputError`.
     """

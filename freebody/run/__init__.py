@@ -3,15 +3,16 @@ engine (:mod:`.execute`), judge it against the truth and the reference maps (:mo
 :mod:`.metrics`, :mod:`.convergence`), and drive many runs through isolated worker processes that
 share truths (:mod:`.suite`, :mod:`.executor`, :mod:`.worker`, :mod:`.sharedcache`,
 :mod:`.dask_executor`).  :mod:`.records` holds the records a run passes through;
-:mod:`.selfcheck` the convention self-checks of ``freebody conventions``.
+:mod:`.progress` the progress display of runs and sweeps; :mod:`.selfcheck` the convention
+self-checks of ``freebody conventions``.
 """
 from .execute import execute
 from .judge import SCHEME_CANDIDATES, TruthCache, compare_with_engine, finish, identify, scheme_candidates
 from .matrix import (engine_integrators, engine_precisions, expand, select_engines, select_integrators,
                      select_precisions)
-from .records import PRECISIONS, STATUSES, RunOutput, RunResult, RunSpec, Simulated
+from .records import PRECISIONS, STATUSES, RunOutput, RunResult, RunSpec, Simulated, Status
 
 __all__ = ["execute", "SCHEME_CANDIDATES", "TruthCache", "compare_with_engine", "finish", "identify",
            "scheme_candidates", "engine_integrators", "engine_precisions", "expand", "select_engines",
            "select_integrators", "select_precisions", "PRECISIONS", "STATUSES", "RunOutput", "RunResult",
-           "RunSpec", "Simulated"]
+           "RunSpec", "Simulated", "Status"]

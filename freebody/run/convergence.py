@@ -24,37 +24,28 @@ import math
 
 import numpy as np
 
-FITTED_METRICS = ("orientation_error_max_rad", "energy_error_max_rel")
+from .. import tolerances as tol
+from ..numbers import finite_or_none
+from .metrics import ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX
+from .records import Status
+
+FITTED_METRICS = (ORIENTATION_ERROR_MAX, ENERGY_ERROR_MAX_REL)
 MIN_POINTS = 3  # two points always fit a line exactly: a third one makes the order a measurement
 
-# Saturation thresholds, per metric: (too large to depend on dt, below the truth's accuracy floor).
-ORIENTATION_SATURATED_RAD = 1.0  # an orientation error of order pi (> 1 rad) is "lost", not O(dt^p)
-ORIENTATION_FLOOR_RAD = 1e-9  # the numerical truth (DOP853 at 1e-12) agrees with the closed form to 2e-9 rad
-ENERGY_SATURATED_REL = 1.0  # an energy error as large as the kinetic energy itself
-ENERGY_FLOOR_REL = 1e-12  # round-off of E accumulated over 1e3-1e4 float64 steps
-# float32 runs hit round-off far earlier: ~1e-7 per step accumulated over ~1e2-1e4 steps
-ORIENTATION_FLOOR_FLOAT32_RAD = 1e-5
-ENERGY_FLOOR_FLOAT32_REL = 1e-5
-
-SHORT_NAMES = {"orientation_error_max_rad": "orientation", "energy_error_max_rel": "energy"}
+SHORT_NAMES = {ORIENTATION_ERROR_MAX: "orientation", ENERGY_ERROR_MAX_REL: "energy"}
 
 
 def bounds(metric: str, precision: str = "float64") -> tuple[float, float]:
-    """(floor, saturation) of a fitted metric: points outside (floor, saturation) are left out."""
+    """(floor, saturation) of a fitted metric: points outside (floor, saturation) are left out
+    (the thresholds and their reasons: the convergence section of :mod:`freebody.tolerances`)."""
     single = precision in ("float32", "single")
-    if metric == "orientation_error_max_rad":
-        return (ORIENTATION_FLOOR_FLOAT32_RAD if single else ORIENTATION_FLOOR_RAD), ORIENTATION_SATURATED_RAD
-    if metric == "energy_error_max_rel":
-        return (ENERGY_FLOOR_FLOAT32_REL if single else ENERGY_FLOOR_REL), ENERGY_SATURATED_REL
+    if metric == ORIENTATION_ERROR_MAX:
+        return ((tol.CONVERGENCE_ORIENTATION_FLOOR_FLOAT32_RAD if single else tol.CONVERGENCE_ORIENTATION_FLOOR_RAD),
+                tol.CONVERGENCE_ORIENTATION_SATURATED_RAD)
+    if metric == ENERGY_ERROR_MAX_REL:
+        return ((tol.CONVERGENCE_ENERGY_FLOOR_FLOAT32_REL if single else tol.CONVERGENCE_ENERGY_FLOOR_REL),
+                tol.CONVERGENCE_ENERGY_SATURATED_REL)
     raise KeyError(f"no saturation bounds for metric {metric!r}")
-
-
-def _number(x) -> float | None:
-    """A finite float, or None for anything else (None, NaN, inf, a string)."""
-    if isinstance(x, bool) or not isinstance(x, (int, float)):
-        return None
-    x = float(x)
-    return x if math.isfinite(x) else None
 
 
 def group_key(run: dict) -> tuple[str, str, str, str]:
@@ -69,7 +60,7 @@ def fit_orders(runs: list[dict]) -> list[dict]:
     """
     groups: dict[tuple, dict[float, dict]] = {}
     for run in runs:
-        dt = _number(run.get("dt"))
+        dt = finite_or_none(run.get("dt"))
         if dt is None or dt <= 0:
             continue
         groups.setdefault(group_key(run), {}).setdefault(dt, run)  # first run of a repeated dt wins
@@ -85,14 +76,14 @@ def fit_orders(runs: list[dict]) -> list[dict]:
 
 def _fit_one(key: tuple, metric: str, dts: list[float], runs: list[dict]) -> dict:
     case, engine, integrator, precision = key
-    errors = [(_number((r.get("metrics") or {}).get(metric)) if r.get("status") == "ok" else None)
+    errors = [(finite_or_none((r.get("metrics") or {}).get(metric)) if r.get("status") == Status.OK else None)
               for r in runs]
     entry = {"case": case, "engine": engine, "integrator": integrator, "precision": precision,
              "metric": metric, "order": None, "dts": dts, "errors": errors, "fitted_dts": [],
              "log10_coefficient": None, "saturated": False, "reason": None}
     floor, high = bounds(metric, precision)
     usable = [(d, e) for d, e in zip(dts, errors) if e is not None]
-    not_ok = [f"{d:g} ({r.get('status')})" for d, r in zip(dts, runs) if r.get("status") != "ok"]
+    not_ok = [f"{d:g} ({r.get('status')})" for d, r in zip(dts, runs) if r.get("status") != Status.OK]
     n_high = sum(e > high for _, e in usable)
     n_low = sum(e < floor for _, e in usable)
     kept = [(d, e) for d, e in usable if floor <= e <= high]
@@ -101,7 +92,7 @@ def _fit_one(key: tuple, metric: str, dts: list[float], runs: list[dict]) -> dic
         notes.append(f"not ok at dt = {', '.join(not_ok)}")
     if n_high:
         notes.append(f"{n_high} point(s) saturated above {high:g} (error of order pi)"
-                     if metric == "orientation_error_max_rad" else
+                     if metric == ORIENTATION_ERROR_MAX else
                      f"{n_high} point(s) saturated above {high:g} (error as large as the energy)")
     if n_low:
         notes.append(f"{n_low} point(s) at the truth's accuracy floor (< {floor:g})")
@@ -118,7 +109,8 @@ def _fit_one(key: tuple, metric: str, dts: list[float], runs: list[dict]) -> dic
     entry["log10_coefficient"] = float(c / math.log(10.0))
     entry["fitted_dts"] = [d for d, _ in kept]
     steps = {r.get("steps") for r in runs}
-    horizons = {round(float(r["steps"]) * d, 12) for r, d in zip(runs, dts) if _number(r.get("steps"))}
+    horizons = {round(float(r["steps"]) * d, tol.CONVERGENCE_HORIZON_DECIMALS)
+                for r, d in zip(runs, dts) if finite_or_none(r.get("steps"))}
     if len(horizons) > 1 and len(steps) == 1:
         notes.append("the horizon is a fixed number of steps, so this is a local (one-horizon) order")
     entry["reason"] = "; ".join(notes) if notes else None

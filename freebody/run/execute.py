@@ -11,7 +11,7 @@ import numpy as np
 from ..adapters.base import EngineDiverged, EngineMissing, load_adapter
 from ..adapters.capture import capture_output
 from .judge import TruthCache, finish
-from .records import RunOutput, RunSpec, Simulated, _describe, _identity, _no_trajectory
+from .records import RunOutput, RunSpec, Simulated, Status, _describe, _identity, _no_trajectory
 
 
 def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: bool = True) -> RunOutput:
@@ -30,7 +30,7 @@ def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: boo
     if captured.total:
         r = out.result
         message = r.message
-        if r.status in ("failed", "diverged"):
+        if r.status in (Status.FAILED, Status.DIVERGED):
             message = f"{message} [engine printed: {captured.lines[0][:200]}]"
         out = RunOutput(replace(r, engine_output=captured.summary(), message=message),
                         out.trajectory, out.truth, out.series)
@@ -52,9 +52,9 @@ def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool
     base = _identity(spec)
     t0 = time.perf_counter()
     if isinstance(cls, EngineMissing):
-        return _no_trajectory(base, "skipped", str(cls), 0.0)
+        return _no_trajectory(base, Status.SKIPPED, str(cls), 0.0)
     if isinstance(cls, BaseException):  # a broken install is a failure, never a skip
-        return _no_trajectory(base, "failed", f"importing the {spec.engine} adapter failed: {_describe(cls)}",
+        return _no_trajectory(base, Status.FAILED, f"importing the {spec.engine} adapter failed: {_describe(cls)}",
                               time.perf_counter() - t0)
     version = settings = adapter = None
     try:
@@ -71,5 +71,5 @@ def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool
         sim = Simulated(e.trajectory, e.t, e.reason, version, settings, time.perf_counter() - t0,
                         adapter.compile_time_s if adapter is not None else None)
     except Exception as e:
-        return _no_trajectory(base, "failed", _describe(e), time.perf_counter() - t0, version, settings)
+        return _no_trajectory(base, Status.FAILED, _describe(e), time.perf_counter() - t0, version, settings)
     return finish(spec, sim, cache, identify_scheme, compare_with=cls.compare_with)

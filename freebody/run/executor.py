@@ -243,47 +243,61 @@ class LocalPool:
                     done(t, failed_payload(t.run.spec, "could not start a worker process "
                                                        "(see the messages above)", 0.0))
                 return
-            for w in self.workers:
-                if w.ready and w.task is None and pending:
-                    t = self._pick(w, pending, finished | truth_ready, finished)
-                    if t is None:
-                        continue
-                    pending.remove(t)
-                    try:
-                        w.send(t)
-                    except OSError:  # died while idle: run the task elsewhere
-                        pending.insert(0, t)
-                        w.task = None
-            busy = [w for w in self.workers if w.task]
-            wait_s = None
-            if self.timeout is not None and busy:
-                now = time.monotonic()
-                wait_s = max(0.0, min(w.started_at + self.timeout for w in busy) - now)
-            for conn in wait([w.from_worker for w in self.workers], wait_s):
-                w = next(w for w in self.workers if w.from_worker is conn)
-                try:
-                    msg = conn.recv()
-                except (EOFError, OSError):
-                    self._lost(w, done)
-                    continue
-                if msg[0] == "ready":
-                    w.ready = True
-                    self._start_failures = 0
-                elif msg[0] == "started":  # the time limit counts from here
-                    truth_ready.add(msg[1])
-                    w.started_at = time.monotonic()
-                elif msg[0] == "done":
-                    task, w.task = w.task, None
-                    done(task, msg[2])
+            self._dispatch(pending, finished, truth_ready)
+            self._receive(truth_ready, done)
             if self.timeout is not None:
-                now = time.monotonic()
-                for w in list(self.workers):
-                    if w.task is not None and now - w.started_at >= self.timeout:
-                        task, wall = w.task, now - w.started_at
-                        w.kill()
-                        self.workers.remove(w)
-                        done(task, failed_payload(task.run.spec, f"timed out after {self.timeout:g} s "
-                                                                 f"(its worker process was killed)", wall))
+                self._kill_overdue(done)
+
+    def _dispatch(self, pending: list[Task], finished: set[int], truth_ready: set[int]) -> None:
+        """Send each idle worker a task it can start now (see _pick), taken off ``pending``."""
+        for w in self.workers:
+            if w.ready and w.task is None and pending:
+                t = self._pick(w, pending, finished | truth_ready, finished)
+                if t is None:
+                    continue
+                pending.remove(t)
+                try:
+                    w.send(t)
+                except OSError:  # died while idle: run the task elsewhere
+                    pending.insert(0, t)
+                    w.task = None
+
+    def _receive(self, truth_ready: set[int], done) -> None:
+        """Wait for the workers' messages (until the earliest time limit of a busy worker, if
+        any) and handle them: "ready", "started" (the truth is ready: the time limit counts from
+        here), "done"; a closed pipe is a lost worker."""
+        busy = [w for w in self.workers if w.task]
+        wait_s = None
+        if self.timeout is not None and busy:
+            now = time.monotonic()
+            wait_s = max(0.0, min(w.started_at + self.timeout for w in busy) - now)
+        for conn in wait([w.from_worker for w in self.workers], wait_s):
+            w = next(w for w in self.workers if w.from_worker is conn)
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                self._lost(w, done)
+                continue
+            if msg[0] == "ready":
+                w.ready = True
+                self._start_failures = 0
+            elif msg[0] == "started":  # the time limit counts from here
+                truth_ready.add(msg[1])
+                w.started_at = time.monotonic()
+            elif msg[0] == "done":
+                task, w.task = w.task, None
+                done(task, msg[2])
+
+    def _kill_overdue(self, done) -> None:
+        """Kill every worker whose run is past the time limit; the run is ``failed``."""
+        now = time.monotonic()
+        for w in list(self.workers):
+            if w.task is not None and now - w.started_at >= self.timeout:
+                task, wall = w.task, now - w.started_at
+                w.kill()
+                self.workers.remove(w)
+                done(task, failed_payload(task.run.spec, f"timed out after {self.timeout:g} s "
+                                                         f"(its worker process was killed)", wall))
 
     def _pick(self, w: Worker, pending: list[Task], has_truth: set[int], finished: set[int]) -> Task | None:
         """The first ready task of the worker's current group with the engine and precision of its

@@ -12,8 +12,9 @@ from ..reference_impl.integrators import simulate as reference_simulate
 from ..reference_impl.problem import Problem
 from ..reference_impl.rotations import geodesic_angle
 from ..reference_impl.truth import truth_trajectory
-from .metrics import divergence, summarize
-from .records import RunOutput, RunResult, RunSpec, Simulated, _clean, _describe, _identity, _no_trajectory
+from .metrics import (ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE,
+                      ROTATION_ORTHONORMALITY_ERROR_MAX, divergence, summarize)
+from .records import RunOutput, RunResult, RunSpec, Simulated, Status, _clean, _describe, _identity, _no_trajectory
 
 # Reference maps an engine run is compared with (scheme identification); rk4 only where the engine
 # offers an RK4 of its own.
@@ -59,33 +60,33 @@ def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bo
     base = _identity(spec)
     trajectory, diverged_at, version, settings = sim.trajectory, sim.diverged_at, sim.version, sim.settings
     wall, compile_time = sim.wall_time_s, sim.compile_time_s
-    status, message = ("ok", "") if diverged_at is None else ("diverged", sim.reason)
+    status, message = (Status.OK, "") if diverged_at is None else (Status.DIVERGED, sim.reason)
     try:
         truth = cache.get(pb, spec.dt, spec.steps)
     except Exception as e:
-        return _no_trajectory(base, "failed", f"truth oracle failed: {_describe(e)}", wall, version,
+        return _no_trajectory(base, Status.FAILED, f"truth oracle failed: {_describe(e)}", wall, version,
                               settings)
     if trajectory is None or len(trajectory) == 0:
         return _no_trajectory(base, status, message, wall, version, settings, diverged_at)
-    if status == "ok":
+    if status == Status.OK:
         found = divergence(pb, trajectory, truth)
         if found is not None:
             diverged_at, message = found
-            status = "diverged"
+            status = Status.DIVERGED
             message = f"diverged at t = {diverged_at:.6g} s: {message}"
     elif diverged_at is not None:
         message = f"diverged at t = {diverged_at:.6g} s: {message}"
     metrics, series = summarize(pb, trajectory, truth)
-    if status == "diverged":
+    if status == Status.DIVERGED:
         # metrics past a blow-up are meaningless: keep them up to the divergence only
-        metrics = {k: (v if k == "rotation_orthonormality_error_max" else None) for k, v in metrics.items()}
+        metrics = {k: (v if k == ROTATION_ORTHONORMALITY_ERROR_MAX else None) for k, v in metrics.items()}
         metrics.update(_prefix_metrics(pb, trajectory, truth, diverged_at))
     matches = vs_engine = None
-    if identify_scheme and not spec.is_reference and status == "ok":
+    if identify_scheme and not spec.is_reference and status == Status.OK:
         matches = identify(pb, trajectory, spec, cache)
         if compare_with:
             vs_engine = compare_with_engine(pb, trajectory, spec, compare_with, cache)
-    final = trajectory.state(-1).as_dict() if status == "ok" else None
+    final = trajectory.state(-1).as_dict() if status == Status.OK else None
     result = RunResult(**base, status=status, message=message, metrics=_clean(metrics), final_state=final,
                        wall_time_s=wall, engine_version=version, engine_settings=settings or {},
                        matches_reference=matches, diverged_at_s=diverged_at, compile_time_s=compile_time,
@@ -141,4 +142,4 @@ def _prefix_metrics(pb, trajectory, truth, t_div) -> dict:
         return {}
     head = trajectory.head(n).without_orthonormality()
     m, _ = summarize(pb, head, truth)
-    return {"orientation_error_max_before_divergence_rad": m["orientation_error_max_rad"]}
+    return {ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE: m[ORIENTATION_ERROR_MAX]}

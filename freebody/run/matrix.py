@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import tolerances as tol
 from ..adapters.base import UnknownEngine, engine_names, is_available, load_adapter, resolve_engine
 from ..adapters.capture import capture_output
 from ..errors import InputError
@@ -137,7 +138,7 @@ def expand(problems: list[Problem], engines: list[str], integrators: list[str] |
         for d in (dts or pb.dts):
             if duration is not None and duration < d:
                 raise InputError(f"--duration: {duration} s is shorter than dt = {d} s")
-            if duration is None and pb.duration is not None and pb.duration < d * (1 - 1e-12):
+            if duration is None and pb.duration is not None and pb.duration < d * (1 - tol.DURATION_VS_DT_RTOL):
                 raise InputError(f"--dt: {d} s is longer than case {pb.name}'s duration ({pb.duration} s)")
             steps = pb.steps(d, duration)
             for engine in engines:

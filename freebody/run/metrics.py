@@ -13,14 +13,33 @@ from ..reference_impl.conventions import Trajectory, angular_momentum, kinetic_e
 from ..reference_impl.problem import Problem
 from ..reference_impl.rotations import geodesic_angle
 from .. import tolerances as tol
+from ..numbers import finite_or_none
 
-METRIC_KEYS = (
-    "orientation_error_max_rad",
-    "orientation_error_final_rad",
-    "angular_momentum_error_max_rel",
-    "energy_error_max_rel",
-    "position_error_max_m",
-    "rotation_orthonormality_error_max",
+# The keys of a results.json ``metrics`` dict, defined once (they are the schema: every module
+# names a metric through these constants).
+ORIENTATION_ERROR_MAX = "orientation_error_max_rad"
+ORIENTATION_ERROR_FINAL = "orientation_error_final_rad"
+ANGULAR_MOMENTUM_ERROR_MAX_REL = "angular_momentum_error_max_rel"
+ENERGY_ERROR_MAX_REL = "energy_error_max_rel"
+POSITION_ERROR_MAX = "position_error_max_m"
+ROTATION_ORTHONORMALITY_ERROR_MAX = "rotation_orthonormality_error_max"
+ANGULAR_MOMENTUM_ERROR_MAX_ABS = "angular_momentum_error_max_abs"  # instead of _rel when the truth's L is 0
+ENERGY_ERROR_MAX_ABS = "energy_error_max_abs_J"  # instead of _rel when the truth's KE is 0
+# diverged runs: the orientation error over the samples before the divergence
+ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE = "orientation_error_max_before_divergence_rad"
+
+METRIC_KEYS = (  # the keys every judged run's metrics have
+    ORIENTATION_ERROR_MAX,
+    ORIENTATION_ERROR_FINAL,
+    ANGULAR_MOMENTUM_ERROR_MAX_REL,
+    ENERGY_ERROR_MAX_REL,
+    POSITION_ERROR_MAX,
+    ROTATION_ORTHONORMALITY_ERROR_MAX,
+)
+METRIC_NAMES = METRIC_KEYS + (  # every metric a run may have
+    ANGULAR_MOMENTUM_ERROR_MAX_ABS,
+    ENERGY_ERROR_MAX_ABS,
+    ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE,
 )
 
 
@@ -76,18 +95,18 @@ def summarize(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[dict
     """The results.json ``metrics`` dict (maxima and finals) and the per-sample series."""
     s = series(problem, tr, truth)
     m = {
-        "orientation_error_max_rad": _max(s.orientation_error),
-        "orientation_error_final_rad": _finite(s.orientation_error[-1]),
-        "angular_momentum_error_max_rel": _max(s.angular_momentum_error) if s.angular_momentum_relative else None,
-        "energy_error_max_rel": _max(s.energy_error) if s.energy_relative else None,
-        "position_error_max_m": _max(s.position_error),
-        "rotation_orthonormality_error_max": (
+        ORIENTATION_ERROR_MAX: _max(s.orientation_error),
+        ORIENTATION_ERROR_FINAL: finite_or_none(s.orientation_error[-1]),
+        ANGULAR_MOMENTUM_ERROR_MAX_REL: _max(s.angular_momentum_error) if s.angular_momentum_relative else None,
+        ENERGY_ERROR_MAX_REL: _max(s.energy_error) if s.energy_relative else None,
+        POSITION_ERROR_MAX: _max(s.position_error),
+        ROTATION_ORTHONORMALITY_ERROR_MAX: (
             None if tr.orthonormality_error is None else _max(tr.orthonormality_error)),
     }
     if not s.angular_momentum_relative:
-        m["angular_momentum_error_max_abs"] = _max(s.angular_momentum_error)
+        m[ANGULAR_MOMENTUM_ERROR_MAX_ABS] = _max(s.angular_momentum_error)
     if not s.energy_relative:
-        m["energy_error_max_abs_J"] = _max(s.energy_error)
+        m[ENERGY_ERROR_MAX_ABS] = _max(s.energy_error)
     return m, s
 
 
@@ -108,9 +127,11 @@ def divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[flo
     ke_true, _ = energies(problem, truth)
     ke_bound = tol.DIVERGENCE_ENERGY_FACTOR * max(float(np.max(ke_true)), tol.DIVERGENCE_ENERGY_FLOOR_J)
     w_norm = np.linalg.norm(tr.angular_velocity, axis=1)
-    w_bound = tol.DIVERGENCE_OMEGA_FACTOR * max(float(np.max(np.linalg.norm(truth.angular_velocity, axis=1))), 1.0)
+    w_bound = tol.DIVERGENCE_OMEGA_FACTOR * max(float(np.max(np.linalg.norm(truth.angular_velocity, axis=1))),
+                                                tol.DIVERGENCE_OMEGA_FLOOR_RAD_S)
     v_norm = np.linalg.norm(tr.linear_velocity, axis=1)
-    v_bound = tol.DIVERGENCE_VELOCITY_FACTOR * max(float(np.max(np.linalg.norm(truth.linear_velocity, axis=1))), 1.0)
+    v_bound = tol.DIVERGENCE_VELOCITY_FACTOR * max(float(np.max(np.linalg.norm(truth.linear_velocity, axis=1))),
+                                                   tol.DIVERGENCE_VELOCITY_FLOOR_M_S)
     for mask, why in ((ke > ke_bound, f"kinetic energy beyond {ke_bound:.3g} J"),
                       (w_norm > w_bound, f"|w| beyond {w_bound:.3g} rad/s"),
                       (v_norm > v_bound, f"|v| beyond {v_bound:.3g} m/s")):
@@ -125,10 +146,5 @@ def _first(mask: np.ndarray) -> int | None:
     return int(idx[0]) if idx.size else None
 
 
-def _finite(x) -> float | None:
-    x = float(x)
-    return x if np.isfinite(x) else None
-
-
 def _max(a: np.ndarray) -> float | None:
-    return _finite(np.max(a)) if len(a) else None
+    return finite_or_none(np.max(a)) if len(a) else None

@@ -2,7 +2,8 @@
 (:class:`Simulated`), and the judged outcome (:class:`RunResult`, serialised as a ``runs`` entry of
 results.json, and :class:`RunOutput` with its arrays).
 
-A run's status is data, one of :data:`STATUSES`:
+A run's status is data, a :class:`Status` (a ``StrEnum``: each member is its string, so it
+compares equal to, and serialises as, ``"ok"`` etc.; :data:`STATUSES` lists the plain strings):
 - ``ok``: the engine ran to the end and stayed within the case's bounds;
 - ``diverged``: non-finite state, beyond the bounds (see :func:`freebody.run.metrics.divergence`), or the
   engine's own instability warning; ``diverged_at_s`` says when;
@@ -13,16 +14,26 @@ from __future__ import annotations
 
 import traceback
 from dataclasses import dataclass, field
-
-import numpy as np
+from enum import StrEnum
 
 from ..adapters.base import REFERENCE_ENGINE
+from ..numbers import finite_or_none
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.problem import Problem
 from ..reference_impl.truth import truth_kind
 from .metrics import Series
 
-STATUSES = ("ok", "diverged", "failed", "skipped")
+
+class Status(StrEnum):
+    """A run's status: the fixed set (see the module docstring)."""
+
+    OK = "ok"
+    DIVERGED = "diverged"
+    FAILED = "failed"
+    SKIPPED = "skipped"
+
+
+STATUSES = tuple(s.value for s in Status)  # ("ok", "diverged", "failed", "skipped"), plain strings
 PRECISIONS = ("float32", "float64")  # floating-point precisions an engine may offer
 
 
@@ -60,7 +71,7 @@ class RunResult:
     precision: str
     dt: float
     steps: int
-    status: str
+    status: Status
     message: str
     truth: str
     metrics: dict
@@ -77,8 +88,13 @@ class RunResult:
     # included in wall_time_s
     compile_time_s: float | None = None
 
+    def __post_init__(self):
+        object.__setattr__(self, "status", Status(self.status))  # ValueError for a status not in the set
+
     def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        d["status"] = self.status.value  # a plain string
+        return d
 
 
 @dataclass(frozen=True)
@@ -115,7 +131,7 @@ def _identity(spec: RunSpec) -> dict:
 
 
 def _clean(metrics: dict) -> dict:
-    return {k: (None if v is None or not np.isfinite(v) else float(v)) for k, v in metrics.items()}
+    return {k: finite_or_none(v) for k, v in metrics.items()}
 
 
 def _describe(e: BaseException) -> str:

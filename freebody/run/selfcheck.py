@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import tolerances as tol
 from ..adapters.base import load_adapter
 from ..reference_impl.conventions import angular_momentum
 from .judge import scheme_candidates
@@ -18,19 +19,7 @@ from ..reference_impl.integrators import simulate as reference_simulate
 from ..reference_impl.problem import Body, InitialState, Load, Problem
 from ..reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply
 
-INITIAL_STATE_ATOL = 1e-12  # reading back what was just set: conversions only, round-off
-# One step of h = 1e-3 from rest with a push: the engines' maps change L by h tau to within
-# O(h^2 |tau| / I) (the rotation of the body during the step), far below this relative bound;
-# a wrong frame or sign of the arm is an O(1) error.
-PUSH_TORQUE_RTOL = 1e-3
-# A torque-free spin keeps L as well as the reference map the engine implements: allow 10% over
-# the better of the candidate maps (their L errors differ by orders of magnitude from the truth's).
-L_DRIFT_FACTOR = 1.1
-L_DRIFT_ATOL = 1e-12  # relative L error floor (round-off over 2 s at dt = 1e-3)
-# A spin about a principal axis has no gyroscopic term: the engines' exponential-map update is
-# exact, so only round-off (and a clamp or per-step rotation cap, if any) separates it from truth;
-# an RK4 engine may in addition show RK4's own error (the reference rk4's, times L_DRIFT_FACTOR).
-HIGH_SPIN_RAD = 1e-9
+# The checks' bounds (SELFCHECK_*) and their reasons: the self-checks section of freebody.tolerances.
 
 CHECKS = ("initial_state", "push_world_point", "push_body_point", "torque_free_L", "high_spin")
 
@@ -80,8 +69,8 @@ def check_initial_state(engine: str, integrator: str) -> CheckResult:
     worst = float(max(errs))
     names = ("position", "orientation", "linear velocity", "angular velocity")
     detail = ", ".join(f"{n} {e:.1e}" for n, e in zip(names, errs))
-    return CheckResult("initial_state", engine, integrator, worst <= INITIAL_STATE_ATOL, worst,
-                       INITIAL_STATE_ATOL, f"state read back at t = 0 vs the case: {detail}")
+    return CheckResult("initial_state", engine, integrator, worst <= tol.SELFCHECK_INITIAL_STATE_ATOL, worst,
+                       tol.SELFCHECK_INITIAL_STATE_ATOL, f"state read back at t = 0 vs the case: {detail}")
 
 
 def _check_push(engine: str, integrator: str, world_point: bool) -> CheckResult:
@@ -104,7 +93,8 @@ def _check_push(engine: str, integrator: str, world_point: bool) -> CheckResult:
     err = float(np.linalg.norm(L[1] - L[0] - expected) / np.linalg.norm(expected))
     name = "push_world_point" if world_point else "push_body_point"
     where = "a world point" if world_point else "a body-frame point"
-    return CheckResult(name, engine, integrator, err <= PUSH_TORQUE_RTOL, err, PUSH_TORQUE_RTOL,
+    return CheckResult(name, engine, integrator, err <= tol.SELFCHECK_PUSH_TORQUE_RTOL, err,
+                       tol.SELFCHECK_PUSH_TORQUE_RTOL,
                        f"one-step push at {where} on a rotated, moving body: |dL - h (r - x) x f| / |h tau| = {err:.1e}")
 
 
@@ -128,7 +118,7 @@ def check_torque_free_L(engine: str, integrator: str) -> CheckResult:
         return float(np.max(np.linalg.norm(L - L[0], axis=1)) / np.linalg.norm(L[0]))
 
     ref = {c: drift(reference_simulate(pb, c, h, steps)) for c in scheme_candidates(integrator)}
-    bound = L_DRIFT_FACTOR * max(ref.values()) + L_DRIFT_ATOL
+    bound = tol.SELFCHECK_L_DRIFT_FACTOR * max(ref.values()) + tol.SELFCHECK_L_DRIFT_ATOL
     got = drift(tr)
     ok = bool(np.isfinite(got) and got <= bound)
     refs = ", ".join(f"{k} {v:.1e}" for k, v in ref.items())
@@ -146,10 +136,10 @@ def check_high_spin(engine: str, integrator: str) -> CheckResult:
     tr = _run(engine, integrator, pb, h, steps)
     exact = quat_multiply(quat_from_rotvec(np.outer(tr.t, w_world)), q0)
     err = float(np.max(geodesic_angle(exact, tr.quaternion_wxyz)))
-    bound = HIGH_SPIN_RAD
+    bound = tol.SELFCHECK_HIGH_SPIN_RAD
     if "rk4" in integrator.lower():
         ref = reference_simulate(pb, "rk4", h, steps)
-        bound += L_DRIFT_FACTOR * float(np.max(geodesic_angle(exact, ref.quaternion_wxyz)))
+        bound += tol.SELFCHECK_L_DRIFT_FACTOR * float(np.max(geodesic_angle(exact, ref.quaternion_wxyz)))
     ok = bool(np.isfinite(err) and err <= bound)
     return CheckResult("high_spin", engine, integrator, ok, err, bound,
                        f"150 rad/s about one body axis, dt = 1e-3, 0.2 s: orientation error {err:.1e} rad "

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from ..reference_impl.conventions import Trajectory
-from ..results.document import write_npz_atomic
+from ..results.io import write_npz_atomic
 from .judge import SCHEME_CANDIDATES, TruthCache
-from .records import RunOutput, RunSpec
+from .records import RunOutput, RunSpec, Status
 
 # reference maps a run of the reference engine can stand in for (identify() compares with these)
 SHAREABLE_REFERENCES = (*SCHEME_CANDIDATES, "rk4")
@@ -90,7 +90,7 @@ class GroupTruthCache(TruthCache):
         tr = out.trajectory
         if (not spec.is_reference or spec.precision != "float64"
                 or spec.integrator not in SHAREABLE_REFERENCES or tr is None
-                or len(tr) != spec.steps + 1 or out.result.status not in ("ok", "diverged")):
+                or len(tr) != spec.steps + 1 or out.result.status not in (Status.OK, Status.DIVERGED)):
             return
         key = (id(spec.problem), float(spec.dt), int(spec.steps), spec.integrator)
         if key in self._memo:

@@ -4,60 +4,22 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import shutil
 import signal
 import sys
 import threading
-import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable, TextIO
+from typing import Callable
 
 from ..adapters.base import load_adapter
 from ..errors import InputError
-from ..results.document import results_document, save_trajectory, trajectory_filename, write_json_atomic
+from ..results.document import results_document, save_trajectory, trajectory_filename
+from ..results.io import is_temporary, write_json_atomic
+from .progress import ProgressDisplay
 from .records import RunOutput, RunSpec
 
 EXECUTORS = ("local", "dask")
-
-
-class Progress:
-    """A one-line progress display on a terminal, one line per run otherwise (e.g. in CI logs)."""
-
-    def __init__(self, total: int, stream: TextIO | None = None, enabled: bool = True):
-        self.total = total
-        self.stream = stream or sys.stderr
-        self.enabled = enabled and total > 0
-        self.tty = self.enabled and self.stream.isatty()
-        self.done = 0
-        self.t0 = time.perf_counter()
-
-    def update(self, out: RunOutput) -> None:
-        self.done += 1
-        if not self.enabled:
-            return
-        r = out.result
-        label = f"{r.case} {r.engine}/{r.integrator} dt={r.dt:g}"
-        elapsed = time.perf_counter() - self.t0
-        line = f"[{self.done}/{self.total}] {elapsed:6.1f}s {r.status:8s} {label}"
-        if self.tty:
-            self.stream.write("\r\033[K" + line[:150])
-            if self.done == self.total:
-                self.stream.write("\n")
-        else:
-            self.stream.write(line + "\n")
-        self.stream.flush()
-
-    def interrupted(self, where: Path | None) -> None:
-        """Say what an interrupt kept."""
-        if not self.enabled:
-            return
-        if self.tty:
-            self.stream.write("\n")
-        kept = f"; kept in {where} (marked incomplete)" if where is not None else ""
-        self.stream.write(f"interrupted: {self.done} of {self.total} runs finished{kept}\n")
-        self.stream.flush()
 
 
 def engine_versions(engines: list[str]) -> dict[str, str | None]:
@@ -95,8 +57,32 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
     On KeyboardInterrupt the workers are stopped, the finished runs are written with
     ``"incomplete": true`` and the interrupt is re-raised.
     """
-    from .executor import LocalPool, plan, run_serial
+    from .executor import plan
 
+    _check_options(jobs, timeout, save_every, executor, scheduler)
+    out_path = Path(out_dir) if out_dir is not None else None
+    bar = ProgressDisplay(len(specs), enabled=progress)
+    finished = _Finished(out_path, engine_versions(engines), bar, on_result)
+    local = executor == "local"
+    if finished.staging is not None:
+        shutil.rmtree(finished.staging, ignore_errors=True)  # left by a run killed with SIGKILL
+    tasks = plan(specs, save_dir=str(finished.staging) if finished.staging is not None and local else None,
+                 save_every=save_every, ship_saved=out_path is not None and not local,
+                 keep_arrays=keep_arrays)
+    try:
+        _execute_tasks(tasks, finished.add, executor=executor, jobs=jobs, timeout=timeout,
+                       scheduler=scheduler, engines=engines)
+    except KeyboardInterrupt:
+        with _interrupts_deferred():
+            finished.interrupted()
+        raise
+    with _interrupts_deferred():
+        doc = finished.write(incomplete=False)
+    return doc, [finished.outputs[i] for i in sorted(finished.outputs)]
+
+
+def _check_options(jobs, timeout, save_every, executor: str, scheduler: str | None) -> None:
+    """InputError naming the command-line option of the first unusable argument of run_specs."""
     if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
         raise InputError(f"--jobs: must be an integer >= 1, got {jobs!r}")
     if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0 and timeout < float("inf")):
@@ -111,66 +97,74 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
     if executor != "dask" and scheduler:
         raise InputError("--scheduler: only used with --executor dask")
 
-    out_path = Path(out_dir) if out_dir is not None else None
-    bar = Progress(len(specs), enabled=progress)
-    versions = engine_versions(engines)
-    runs: dict[int, dict] = {}
-    outputs: dict[int, RunOutput] = {}
 
-    # Trajectory files are written to a staging folder and published with results.json, so a kill
-    # at any moment leaves the previous results.json with the trajectory files it names.
-    staging = out_path / STAGING if out_path is not None else None
+class _Finished:
+    """The finished runs of one run_specs call, by spec index: each one's trajectory file saved,
+    the progress shown, ``on_result`` called; written as results.json on demand.
 
-    def on_done(index: int, payload: dict) -> None:
+    Trajectory files are written to a staging folder and published with results.json, so a kill
+    at any moment leaves the previous results.json with the trajectory files it names.
+    """
+
+    def __init__(self, out_path: Path | None, versions: dict[str, str | None], bar: ProgressDisplay,
+                 on_result: Callable[[RunOutput], None] | None):
+        self.out_path, self.versions, self.bar, self.on_result = out_path, versions, bar, on_result
+        self.staging = out_path / STAGING if out_path is not None else None
+        self.runs: dict[int, dict] = {}
+        self.outputs: dict[int, RunOutput] = {}
+
+    def add(self, index: int, payload: dict) -> None:
+        """A task's payload: its ``result``, and its trajectory and truth (``saved``) when a worker
+        elsewhere shipped them (else it saved them itself) and its arrays when asked for."""
         result = payload["result"]
-        if "saved" in payload and staging is not None:
+        if "saved" in payload and self.staging is not None:
             rel = trajectory_filename(result.to_json())
             tr, truth = payload["saved"]
-            save_trajectory(staging, rel, tr, truth, every=1)  # thinned by the worker already
+            save_trajectory(self.staging, rel, tr, truth, every=1)  # thinned by the worker already
             result = replace(result, trajectory=rel)
         out = RunOutput(result, *(payload.get("arrays") or (None, None, None)))
-        runs[index] = result.to_json()
-        outputs[index] = out
-        bar.update(out)
-        if on_result:
-            on_result(out)
+        self.runs[index] = result.to_json()
+        self.outputs[index] = out
+        self.bar.update(f"{result.status:8s} {result.case} {result.engine}/{result.integrator} dt={result.dt:g}")
+        if self.on_result:
+            self.on_result(out)
 
-    def write(incomplete: bool) -> dict:
-        doc = results_document([runs[i] for i in sorted(runs)], versions, incomplete=incomplete)
-        if out_path is not None:
-            _publish_trajectories(out_path)
-            write_json_atomic(out_path / "results.json", doc)
+    def write(self, incomplete: bool) -> dict:
+        """The results document of the runs so far; with an output folder, its trajectory files
+        published and results.json written."""
+        doc = results_document([self.runs[i] for i in sorted(self.runs)], self.versions, incomplete=incomplete)
+        if self.out_path is not None:
+            _publish_trajectories(self.out_path)
+            write_json_atomic(self.out_path / "results.json", doc)
         return doc
 
-    local = executor == "local"
-    if staging is not None:
-        shutil.rmtree(staging, ignore_errors=True)  # left by a run killed with SIGKILL
-    tasks = plan(specs, save_dir=str(staging) if staging is not None and local else None,
-                 save_every=save_every, ship_saved=out_path is not None and not local,
-                 keep_arrays=keep_arrays)
-    try:
-        if local and jobs == 1 and timeout is None:
-            run_serial(tasks, on_done)
-        elif local:
-            pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines)
-            try:
-                pool.run(tasks, on_done)
-            finally:
-                with _interrupts_deferred():  # a second Ctrl-C must not leave workers behind
-                    pool.close(kill=sys.exc_info()[0] is not None)
-        else:
-            from .dask_executor import run_dask
+    def interrupted(self) -> None:
+        """Write what an interrupt kept (marked incomplete) and say so."""
+        _remove_partial_trajectories(self.staging)
+        self.write(incomplete=True)
+        kept = f"; kept in {self.out_path / 'results.json'} (marked incomplete)" if self.out_path is not None else ""
+        self.bar.note(f"interrupted: {self.bar.done} of {self.bar.total} runs finished{kept}")
 
-            run_dask(tasks, scheduler, timeout, engines, on_done)
-    except KeyboardInterrupt:
-        with _interrupts_deferred():
-            _remove_partial_trajectories(staging)
-            write(incomplete=True)
-            bar.interrupted(out_path / "results.json" if out_path is not None else None)
-        raise
-    with _interrupts_deferred():
-        doc = write(incomplete=False)
-    return doc, [outputs[i] for i in sorted(outputs)]
+
+def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executor: str, jobs: int,
+                   timeout: float | None, scheduler: str | None, engines: list[str]) -> None:
+    """Execute the planned tasks, calling ``on_done(index, payload)`` as each finishes: in this
+    process (one job, no timeout), in local worker processes, or on a dask cluster."""
+    from .executor import LocalPool, run_serial
+
+    if executor == "dask":
+        from .dask_executor import run_dask
+
+        run_dask(tasks, scheduler, timeout, engines, on_done)
+    elif jobs == 1 and timeout is None:
+        run_serial(tasks, on_done)
+    else:
+        pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines)
+        try:
+            pool.run(tasks, on_done)
+        finally:
+            with _interrupts_deferred():  # a second Ctrl-C must not leave workers behind
+                pool.close(kill=sys.exc_info()[0] is not None)
 
 
 @contextlib.contextmanager
@@ -208,14 +202,11 @@ def _publish_trajectories(out_path: Path) -> None:
     shutil.rmtree(out_path / STAGING, ignore_errors=True)
 
 
-_TEMPORARY_NPZ = re.compile(r"tmp[a-z0-9_]{8}\.npz")  # tempfile.mkstemp(suffix=".npz") in save_trajectory
-
-
 def _remove_partial_trajectories(staging: Path | None) -> None:
     """Remove the temporary files of trajectories being written by a killed worker."""
     if staging is None or not (staging / "trajectories").is_dir():
         return
     for p in (staging / "trajectories").iterdir():
-        if _TEMPORARY_NPZ.fullmatch(p.name) and "__dt" not in p.name:
+        if is_temporary(p.name):
             with contextlib.suppress(OSError):
                 p.unlink()

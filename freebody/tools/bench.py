@@ -30,12 +30,11 @@ import sys
 import tempfile
 import time
 from dataclasses import dataclass
-from datetime import datetime, timezone
 from typing import Callable
 
 import numpy as np
 
-from .. import __version__
+from ..results.document import document_header
 
 SCHEMA_VERSION = 1
 
@@ -296,28 +295,25 @@ def run_bench(config: BenchConfig, progress: bool = False) -> dict:
             continue
         overhead[engine] = res["overhead_ratio"]
         engine_steps[engine] = res
-    doc = {
-        "schema_version": SCHEMA_VERSION,
-        "freebody_version": __version__,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "cores": os.cpu_count(),
-        "engines": versions,
-        "quick": config.quick,
-        "repeats": config.repeats,
-        "case": CASE,
-        "dt": DT,
-        "engine_steps": config.engine_steps,
-        "overhead_ratio": overhead,
-        "engine_step_s": engine_steps,
-        "skipped": skipped,
-        "targets": {"overhead_ratio_max": TARGET_OVERHEAD_RATIO,
-                    "batch_speedup_min": TARGET_BATCH_SPEEDUP,
-                    "batch_size": TARGET_BATCH_SIZE,
-                    "engine_equivalent_maps": list(ENGINE_EQUIVALENT_MAPS)},
-    }
+    doc = document_header(
+        SCHEMA_VERSION, versions,
+        platform=platform.platform(),  # the detailed OS string: timings depend on it
+        python=platform.python_version(),
+        numpy=np.__version__,
+        cores=os.cpu_count(),
+        quick=config.quick,
+        repeats=config.repeats,
+        case=CASE,
+        dt=DT,
+        engine_steps=config.engine_steps,
+        overhead_ratio=overhead,
+        engine_step_s=engine_steps,
+        skipped=skipped,
+        targets={"overhead_ratio_max": TARGET_OVERHEAD_RATIO,
+                 "batch_speedup_min": TARGET_BATCH_SPEEDUP,
+                 "batch_size": TARGET_BATCH_SIZE,
+                 "engine_equivalent_maps": list(ENGINE_EQUIVALENT_MAPS)},
+    )
     doc.update(batched_reference(config, progress))
     if config.suite:
         doc.update(suite_timing(config, progress))

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import tolerances as tol
 from ..adapters.base import REFERENCE_ENGINE
 from ..input.casefile import load_case
 from ..reference_impl.conventions import Trajectory, angular_velocity_body_from_world
@@ -43,7 +44,6 @@ INTEGRATORS_DT = 0.01  # s: coarse enough that the first-order schemes' errors a
 INTEGRATORS_DURATION = 20.0  # s
 CONVERGENCE_DURATION = 2.0  # s: short enough that explicit Euler's error (< 0.2 rad) has not saturated
 CONVERGENCE_DTS = (0.1, 0.05, 0.025, 0.0125, 0.00625, 0.003125)  # s
-SLOPE_FIT_RANGE_RAD = (1e-12, 0.3)  # fit only errors above round-off and below saturation
 
 # Quiz demo: the quiz case at the lecture's step.
 QUIZ_CASE = "quiz"
@@ -150,7 +150,7 @@ def integrators_data(problem: Problem, dt: float, duration: float) -> dict:
 
 def convergence_data(problem: Problem, duration: float, dts=CONVERGENCE_DTS) -> dict:
     """Per lecture scheme: the max orientation error (rad) over [0, duration] at each dt, and the
-    least-squares slope of log(error) against log(dt) over the errors in SLOPE_FIT_RANGE_RAD."""
+    least-squares slope of log(error) against log(dt) over the errors in tol.DEMO_SLOPE_FIT_RANGE_RAD."""
     out = {}
     for name in LECTURE_SCHEMES:
         errs = []
@@ -160,7 +160,7 @@ def convergence_data(problem: Problem, duration: float, dts=CONVERGENCE_DTS) -> 
             truth = truth_trajectory(problem, dt, steps)
             errs.append(float(np.max(geodesic_angle(truth.quaternion_wxyz, tr.quaternion_wxyz))))
         errs = np.array(errs)
-        lo, hi = SLOPE_FIT_RANGE_RAD
+        lo, hi = tol.DEMO_SLOPE_FIT_RANGE_RAD
         use = (errs > lo) & (errs < hi)
         slope = float(np.polyfit(np.log(np.array(dts)[use]), np.log(errs[use]), 1)[0]) if use.sum() >= 2 else None
         out[name] = {"dt": list(dts), "error": errs.tolist(), "slope": slope, "order": INTEGRATORS[name].order}
@@ -172,47 +172,14 @@ def demo_integrators(out_dir: Path, dt: float = INTEGRATORS_DT, duration: float 
                      convergence_dts=CONVERGENCE_DTS) -> DemoOutput:
     """Four figures and ``integrators.md``."""
     base = load_case(INTEGRATORS_CASE)
-    pb = _with(base, duration, dt)
-    data = integrators_data(pb, dt, duration)
+    problem = _with(base, duration, dt)
+    data = integrators_data(problem, dt, duration)
     conv = convergence_data(_with(base, convergence_duration, dt), convergence_duration, convergence_dts)
     res = DemoOutput("integrators", out_dir / "integrators.md")
     with _rc():
-        for key, stem, ylabel, title in (
-                ("energy", "integrators_energy", "|E(t) - E(0)| / KE(0)",
-                 f"Energy drift, tumbling body, dt = {dt:g} s"),
-                ("orientation", "integrators_orientation", "orientation error (rad)",
-                 f"Orientation error against the exact motion, dt = {dt:g} s")):
-            fig, ax = _figure()
-            ax = ax[0, 0]
-            for name in LECTURE_SCHEMES:
-                y = np.maximum(data[name][key][1:], 1e-17)  # t = 0 (zero error) off the log axis
-                ax.semilogy(data[name]["t"][1:], y, color=SCHEME_COLORS[name], label=name,
-                            linestyle=SCHEME_STYLES.get(name, "-"))
-            ax.set(xlabel="t (s)", ylabel=ylabel, title=title)
-            ax.legend(loc="lower right", ncols=2)
-            res.figures.append(_save(fig, out_dir, stem))
-
-        fig, ax = _figure()
-        ax = ax[0, 0]
-        for name in ("euler-matrix", "euler-matrix-gs"):
-            y = np.maximum(data[name]["orthonormality"][1:], 1e-17)
-            ax.semilogy(data[name]["t"][1:], y, color=SCHEME_COLORS[name], label=name)
-        ax.set(xlabel="t (s)", ylabel=r"$\|R^T R - 1\|_F$",
-               title="R stops being a rotation without Gram-Schmidt")
-        ax.legend(loc="center right")
-        res.figures.append(_save(fig, out_dir, "integrators_orthonormality"))
-
-        fig, ax = _figure(size=(10, 7.5))
-        ax = ax[0, 0]
-        for name in LECTURE_SCHEMES:
-            c = conv[name]
-            slope = "-" if c["slope"] is None else f"{c['slope']:.2f}"
-            ax.loglog(c["dt"], c["error"], marker="o", color=SCHEME_COLORS[name],
-                      linestyle=SCHEME_STYLES.get(name, "-"), label=f"{name}: slope {slope}")
-        ax.set(xlabel="dt (s)", ylabel="max orientation error (rad)",
-               title=f"Convergence over {convergence_duration:g} s")
-        ax.legend(loc="lower right")
-        res.figures.append(_save(fig, out_dir, "integrators_convergence"))
+        res.figures.extend(_plot_integrator_errors(data, dt, out_dir))
+        res.figures.append(_plot_orthonormality(data, out_dir))
+        res.figures.append(_plot_convergence(conv, convergence_duration, out_dir))
 
     steps = int(round(duration / dt))
     final = {n: {"energy": _nanlast(data[n]["energy"]), "orientation": _nanlast(data[n]["orientation"]),
@@ -223,7 +190,63 @@ def demo_integrators(out_dir: Path, dt: float = INTEGRATORS_DT, duration: float 
     rows = "\n".join(f"| `{n}` | {INTEGRATORS[n].summary} | {final[n]['energy']:.2e} | "
                      f"{final[n]['orientation']:.2e} | {_fmt_slope(conv[n]['slope'])} |"
                      for n in LECTURE_SCHEMES)
-    _write_page(res.page, f"""
+    _write_page(res.page, _integrators_page(dt, duration, steps, convergence_duration, rows, ortho))
+    return res
+
+
+def _plot_integrator_errors(data: dict, dt: float, out_dir: Path) -> list[Path]:
+    """The energy-drift and orientation-error figures (log scale against t) of integrators_data."""
+    stems = []
+    for key, stem, ylabel, title in (
+            ("energy", "integrators_energy", "|E(t) - E(0)| / KE(0)",
+             f"Energy drift, tumbling body, dt = {dt:g} s"),
+            ("orientation", "integrators_orientation", "orientation error (rad)",
+             f"Orientation error against the exact motion, dt = {dt:g} s")):
+        fig, ax = _figure()
+        ax = ax[0, 0]
+        for name in LECTURE_SCHEMES:
+            y = np.maximum(data[name][key][1:], 1e-17)  # t = 0 (zero error) off the log axis
+            ax.semilogy(data[name]["t"][1:], y, color=SCHEME_COLORS[name], label=name,
+                        linestyle=SCHEME_STYLES.get(name, "-"))
+        ax.set(xlabel="t (s)", ylabel=ylabel, title=title)
+        ax.legend(loc="lower right", ncols=2)
+        stems.append(_save(fig, out_dir, stem))
+    return stems
+
+
+def _plot_orthonormality(data: dict, out_dir: Path) -> Path:
+    """||R^T R - 1||_F against t for the matrix schemes, with and without Gram-Schmidt."""
+    fig, ax = _figure()
+    ax = ax[0, 0]
+    for name in ("euler-matrix", "euler-matrix-gs"):
+        y = np.maximum(data[name]["orthonormality"][1:], 1e-17)
+        ax.semilogy(data[name]["t"][1:], y, color=SCHEME_COLORS[name], label=name)
+    ax.set(xlabel="t (s)", ylabel=r"$\|R^T R - 1\|_F$",
+           title="R stops being a rotation without Gram-Schmidt")
+    ax.legend(loc="center right")
+    return _save(fig, out_dir, "integrators_orthonormality")
+
+
+def _plot_convergence(conv: dict, convergence_duration: float, out_dir: Path) -> Path:
+    """Max orientation error against dt (log-log) per scheme of convergence_data, slopes in the legend."""
+    fig, ax = _figure(size=(10, 7.5))
+    ax = ax[0, 0]
+    for name in LECTURE_SCHEMES:
+        c = conv[name]
+        slope = "-" if c["slope"] is None else f"{c['slope']:.2f}"
+        ax.loglog(c["dt"], c["error"], marker="o", color=SCHEME_COLORS[name],
+                  linestyle=SCHEME_STYLES.get(name, "-"), label=f"{name}: slope {slope}")
+    ax.set(xlabel="dt (s)", ylabel="max orientation error (rad)",
+           title=f"Convergence over {convergence_duration:g} s")
+    ax.legend(loc="lower right")
+    return _save(fig, out_dir, "integrators_convergence")
+
+
+def _integrators_page(dt: float, duration: float, steps: int, convergence_duration: float, rows: str,
+                      ortho: float) -> str:
+    """The Markdown of ``integrators.md``: ``rows`` is the table body, ``ortho`` the final
+    orthonormality error of euler-matrix."""
+    return f"""
 # Integrators on a tumbling body
 
 The body of the bundled case `{INTEGRATORS_CASE}`: I = diag(1, 2, 3) kg m^2, no gravity, tumbling about
@@ -271,8 +294,7 @@ The maximum orientation error over {convergence_duration:g} s against dt, on a l
 the observed order: about 1 for the Euler family (halve dt, halve the error) and about 4 for RK4
 (halve dt, error / 16). The horizon is short so that explicit Euler has not saturated (errors above
 about 1 rad no longer shrink with dt, and the fitted slope would be meaningless).
-""")
-    return res
+"""
 
 
 def _nanlast(a: np.ndarray) -> float:
@@ -374,54 +396,67 @@ FAMILY_COLORS = {"explicit": "#d62728", "semi-implicit": "#1f77b4", "rk4": "#2ca
 
 def demo_quiz(out_dir: Path, engines: list[str] | None = None, h: float = QUIZ_DT, log=None) -> DemoOutput:
     """The push quiz at t2: one figure (x2 and the rotation angle per scheme) and ``quiz.md``."""
-    pb = load_case(QUIZ_CASE)
-    cf = quiz_closed_form(pb, h)
-    rows = quiz_rows(pb, h, engines, log=log)
+    problem = load_case(QUIZ_CASE)
+    cf = quiz_closed_form(problem, h)
+    rows = quiz_rows(problem, h, engines, log=log)
     res = DemoOutput("quiz", out_dir / "quiz.md")
     drawn = [r for r in rows if r.status == "ok"]
-    truth = rows[-1]
     with _rc():
-        fig, axes = _figure(1, 2, size=(14, 7.5), sharey=True)
-        labels = [r.label for r in drawn][::-1]
-        ypos = np.arange(len(labels))
-        for ax, values, exact, xlabel in (
-                (axes[0, 0], [r.x2[0] * 100 for r in drawn][::-1], truth.x2[0] * 100, "x2, x component (cm)"),
-                (axes[0, 1], [np.degrees(r.angle2) for r in drawn][::-1], np.degrees(truth.angle2),
-                 "rotation about z at t2 (deg)")):
-            colors = [FAMILY_COLORS[r.family] for r in drawn][::-1]
-            ax.barh(ypos, values, color=colors)
-            ax.axvline(exact, color="black", linestyle="--", linewidth=1.5)
-            ax.set_xlabel(xlabel)
-            ax.grid(axis="y", visible=False)
-        axes[0, 0].set_yticks(ypos, labels)
-        from matplotlib.patches import Patch
-
-        present = dict.fromkeys(r.family for r in drawn)
-        names = {"explicit": "explicit Euler", "semi-implicit": "semi-implicit Euler", "rk4": "RK4",
-                 "truth": "truth"}
-        fig.legend(handles=[Patch(color=FAMILY_COLORS[f], label=names[f]) for f in present],
-                   loc="outside lower center", ncols=len(present))
-        fig.suptitle(f"The push quiz after two steps of h = {h:g} s (dashed: the exact motion)")
-        res.figures.append(_save(fig, out_dir, "quiz_t2"))
-
-    def v(a):
-        return "(" + ", ".join(f"{x:.4g}" for x in a) + ")"
+        res.figures.append(_plot_quiz(drawn, rows[-1], h, out_dir))
 
     table = "\n".join(
-        f"| {r.label} | {v(r.x2)} | {np.degrees(r.angle2):.4g} | {v(r.v2)} | {v(r.w2)} |" if r.status == "ok"
-        else f"| {r.label} | {r.status} | | | |" for r in rows)
+        f"| {r.label} | {_vec(r.x2)} | {np.degrees(r.angle2):.4g} | {_vec(r.v2)} | {_vec(r.w2)} |"
+        if r.status == "ok" else f"| {r.label} | {r.status} | | | |" for r in rows)
     x_ratio = {r.label: r.x2[0] / (h * h * cf["F"][0] / cf["m"]) for r in drawn}
     res.facts = {"closed_form": {k: np.asarray(val).tolist() for k, val in cf.items()},
                  "rows": [{"label": r.label, "family": r.family, "status": r.status,
                            "x2": None if r.x2 is None else r.x2.tolist(), "angle2": r.angle2} for r in rows],
                  "x_over_h2F": x_ratio}
+    _write_page(res.page, _quiz_page(cf, h, table))
+    return res
+
+
+def _vec(a) -> str:
+    """A vector as "(x, y, z)" with 4 significant digits."""
+    return "(" + ", ".join(f"{x:.4g}" for x in a) + ")"
+
+
+def _plot_quiz(drawn: list[QuizRow], truth: QuizRow, h: float, out_dir: Path) -> Path:
+    """Bars of x2 and of the rotation angle at t2 per drawn row, coloured by family, the truth
+    dashed."""
+    fig, axes = _figure(1, 2, size=(14, 7.5), sharey=True)
+    labels = [r.label for r in drawn][::-1]
+    ypos = np.arange(len(labels))
+    for ax, values, exact, xlabel in (
+            (axes[0, 0], [r.x2[0] * 100 for r in drawn][::-1], truth.x2[0] * 100, "x2, x component (cm)"),
+            (axes[0, 1], [np.degrees(r.angle2) for r in drawn][::-1], np.degrees(truth.angle2),
+             "rotation about z at t2 (deg)")):
+        colors = [FAMILY_COLORS[r.family] for r in drawn][::-1]
+        ax.barh(ypos, values, color=colors)
+        ax.axvline(exact, color="black", linestyle="--", linewidth=1.5)
+        ax.set_xlabel(xlabel)
+        ax.grid(axis="y", visible=False)
+    axes[0, 0].set_yticks(ypos, labels)
+    from matplotlib.patches import Patch
+
+    present = dict.fromkeys(r.family for r in drawn)
+    names = {"explicit": "explicit Euler", "semi-implicit": "semi-implicit Euler", "rk4": "RK4",
+             "truth": "truth"}
+    fig.legend(handles=[Patch(color=FAMILY_COLORS[f], label=names[f]) for f in present],
+               loc="outside lower center", ncols=len(present))
+    fig.suptitle(f"The push quiz after two steps of h = {h:g} s (dashed: the exact motion)")
+    return _save(fig, out_dir, "quiz_t2")
+
+
+def _quiz_page(cf: dict, h: float, table: str) -> str:
+    """The Markdown of ``quiz.md``: ``cf`` from quiz_closed_form, ``table`` the table body."""
     F, tau, g, m = cf["F"], cf["tau"], cf["g"], cf["m"]
-    _write_page(res.page, f"""
+    return f"""
 # The push quiz, worked out
 
 A sphere of m = {m:g} kg, radius 1 m (I = 2/5 m r^2 = 0.4 kg m^2), at rest at the origin under gravity
-g = {v(g)} m/s^2, is pushed for one step of h = {h:g} s by F = 4 N at 30 deg, F = {v(F)} N, at the world
-point r = (-1, 0, 0) m. The torque about the COM is tau = r x F = {v(tau)} N m. Where is it after two
+g = {_vec(g)} m/s^2, is pushed for one step of h = {h:g} s by F = 4 N at 30 deg, F = {_vec(F)} N, at the world
+point r = (-1, 0, 0) m. The torque about the COM is tau = r x F = {_vec(tau)} N m. Where is it after two
 steps (t2 = 2h)? Bundled as the case `quiz` (`freebody run quiz`).
 
 ## Explicit Euler in closed form
@@ -431,8 +466,8 @@ Explicit Euler on (x, R, P, L) updates every variable with the derivative at the
 - step 1 (t0 -> t1, push on): x1 = x0 + h P0/m = 0, R1 = R0 + h [w0] R0 = 1, P1 = h (F + m g), L1 = h tau;
 - step 2 (t1 -> t2, push off): x2 = x1 + h P1/m, R2 = R1 + h [w1] R1 with w1 = I^-1 L1.
 
-So **x2 = h^2 (F/m + g)** = {v(cf['x2'])} m, **R2 = 1 + h [w1]** with **w1 = (0, 0, -5h)** =
-{v(cf['w1'])} rad/s, **P2 = hF + 2hmg** = {v(cf['P2'])} kg m/s, **L2 = (0, 0, -2h)** = {v(cf['L2'])} kg m^2/s.
+So **x2 = h^2 (F/m + g)** = {_vec(cf['x2'])} m, **R2 = 1 + h [w1]** with **w1 = (0, 0, -5h)** =
+{_vec(cf['w1'])} rad/s, **P2 = hF + 2hmg** = {_vec(cf['P2'])} kg m/s, **L2 = (0, 0, -2h)** = {_vec(cf['L2'])} kg m^2/s.
 R2 is not a rotation: det R2 = 1 + 25 h^4 = {np.linalg.det(cf['R2']):.6g}.
 
 ## Every scheme at t2
@@ -461,8 +496,7 @@ R2 is not a rotation: det R2 = 1 + 25 h^4 = {np.linalg.det(cf['R2']):.6g}.
 The exact answer lies between the two first-order schemes; the gap shrinks like h (try
 `freebody run quiz --dt 0.01`), and the three engines' agreement with each other says which scheme they
 implement, not that they are exact.
-""")
-    return res
+"""
 
 
 # --- dzhanibekov --------------------------------------------------------------------------------
@@ -470,7 +504,7 @@ implement, not that they are exact.
 def dzhanibekov_runs(problem: Problem, dt: float, steps: int, engines: list[str] | None, log=None):
     """(label, trajectory or None, status message) per engine integrator, the reference's
     REFERENCE_IN_DZHANIBEKOV first; a missing or failing engine has no trajectory and says why."""
-    from ..run import RunSpec, TruthCache, engine_integrators, execute, select_engines
+    from ..run import RunSpec, Status, TruthCache, engine_integrators, execute, select_engines
 
     cache = TruthCache()
     out = []
@@ -481,43 +515,23 @@ def dzhanibekov_runs(problem: Problem, dt: float, steps: int, engines: list[str]
             if log:
                 log(f"dzhanibekov: {engine}/{integ}")
             r = execute(RunSpec(problem, engine, integ, dt, steps), cache, identify_scheme=False)
-            ok = r.trajectory is not None and r.result.status == "ok"
+            ok = r.trajectory is not None and r.result.status == Status.OK
             out.append((f"{engine}/{integ}" if integ != "*" else engine, r.trajectory if ok else None,
-                        "ok" if ok else f"{r.result.status}: {r.result.message}"))
+                        Status.OK.value if ok else f"{r.result.status}: {r.result.message}"))
     return out
 
 
 def demo_dzhanibekov(out_dir: Path, engines: list[str] | None = None, dt: float = DZHANIBEKOV_DT,
                      duration: float = DZHANIBEKOV_DURATION, frames: int = GIF_FRAMES, log=None) -> DemoOutput:
     """Angular velocity (body and world) and energy error per engine, a GIF, ``dzhanibekov.md``."""
-    pb = _with(load_case(DZHANIBEKOV_CASE), duration, dt)
+    problem = _with(load_case(DZHANIBEKOV_CASE), duration, dt)
     steps = int(round(duration / dt))
-    truth = truth_trajectory(pb, dt, steps)
-    runs = dzhanibekov_runs(pb, dt, steps, engines, log=log)
+    truth = truth_trajectory(problem, dt, steps)
+    runs = dzhanibekov_runs(problem, dt, steps, engines, log=log)
     res = DemoOutput("dzhanibekov", out_dir / "dzhanibekov.md")
-    styles = ["-", "--", "-.", ":"]
+    wb_true = angular_velocity_body_from_world(truth.quaternion_wxyz, truth.angular_velocity)
     with _rc():
-        fig, axes = _figure(3, 1, size=(12, 11), sharex=True)
-        ax_b, ax_w, ax_e = axes[:, 0]
-        wb_true = angular_velocity_body_from_world(truth.quaternion_wxyz, truth.angular_velocity)
-        ax_b.plot(truth.t, wb_true[:, 1], color="black", linewidth=4, alpha=0.35, label="truth")
-        ax_w.plot(truth.t, truth.angular_velocity[:, 0], color="black", linewidth=4, alpha=0.35)
-        import matplotlib
-
-        cmap = matplotlib.colormaps["tab10"]
-        drawn = [(lab, tr) for lab, tr, _ in runs if tr is not None]
-        for k, (label, tr) in enumerate(drawn):
-            color, ls = cmap(k % 10), styles[k % len(styles)]
-            wb = angular_velocity_body_from_world(tr.quaternion_wxyz, tr.angular_velocity)
-            ax_b.plot(tr.t, wb[:, 1], color=color, linestyle=ls, label=label)
-            ax_w.plot(tr.t, tr.angular_velocity[:, 0], color=color, linestyle=ls)
-            ax_e.semilogy(tr.t, np.maximum(_rel_energy_error(pb, tr), 1e-17), color=color, linestyle=ls)
-        ax_b.set(ylabel=r"$\omega_{body,y}$ (rad/s)", title="The intermediate axis flips (Dzhanibekov effect)")
-        ax_w.set(ylabel=r"$\omega_{world,x}$ (rad/s)")
-        ax_e.set(xlabel="t (s)", ylabel="|E - E0| / E0")
-        ax_b.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=11)
-        res.figures.append(_save(fig, out_dir, "dzhanibekov_flip"))
-
+        res.figures.append(_plot_dzhanibekov(problem, truth, wb_true, runs, out_dir))
         gif = out_dir / "dzhanibekov.gif"
         _animate_box(truth, gif, frames)
         res.files.append(gif)
@@ -526,10 +540,44 @@ def demo_dzhanibekov(out_dir: Path, engines: list[str] | None = None, dt: float 
     res.facts = {"flip_times_s": flips, "runs": [{"label": lab, "status": st} for lab, _, st in runs]}
     missing = "\n".join(f"- {lab}: {st}" for lab, tr, st in runs if tr is None) or "- none"
     finals = "\n".join(
-        f"| {lab} | {np.nanmax(_rel_energy_error(pb, tr)):.2e} | "
+        f"| {lab} | {np.nanmax(_rel_energy_error(problem, tr)):.2e} | "
         f"{np.max(geodesic_angle(truth.quaternion_wxyz, tr.quaternion_wxyz)):.3g} |"
         for lab, tr, _ in runs if tr is not None)
-    _write_page(res.page, f"""
+    _write_page(res.page, _dzhanibekov_page(dt, duration, flips, finals, missing))
+    return res
+
+
+def _plot_dzhanibekov(problem: Problem, truth: Trajectory, wb_true: np.ndarray, runs: list,
+                      out_dir: Path) -> Path:
+    """Three panels against t: body-frame w_y, world-frame w_x and the energy error, for the truth
+    (``wb_true``: its body-frame angular velocity (N, 3)) and every run of dzhanibekov_runs that
+    has a trajectory."""
+    styles = ["-", "--", "-.", ":"]
+    fig, axes = _figure(3, 1, size=(12, 11), sharex=True)
+    ax_b, ax_w, ax_e = axes[:, 0]
+    ax_b.plot(truth.t, wb_true[:, 1], color="black", linewidth=4, alpha=0.35, label="truth")
+    ax_w.plot(truth.t, truth.angular_velocity[:, 0], color="black", linewidth=4, alpha=0.35)
+    import matplotlib
+
+    cmap = matplotlib.colormaps["tab10"]
+    drawn = [(lab, tr) for lab, tr, _ in runs if tr is not None]
+    for k, (label, tr) in enumerate(drawn):
+        color, ls = cmap(k % 10), styles[k % len(styles)]
+        wb = angular_velocity_body_from_world(tr.quaternion_wxyz, tr.angular_velocity)
+        ax_b.plot(tr.t, wb[:, 1], color=color, linestyle=ls, label=label)
+        ax_w.plot(tr.t, tr.angular_velocity[:, 0], color=color, linestyle=ls)
+        ax_e.semilogy(tr.t, np.maximum(_rel_energy_error(problem, tr), 1e-17), color=color, linestyle=ls)
+    ax_b.set(ylabel=r"$\omega_{body,y}$ (rad/s)", title="The intermediate axis flips (Dzhanibekov effect)")
+    ax_w.set(ylabel=r"$\omega_{world,x}$ (rad/s)")
+    ax_e.set(xlabel="t (s)", ylabel="|E - E0| / E0")
+    ax_b.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=11)
+    return _save(fig, out_dir, "dzhanibekov_flip")
+
+
+def _dzhanibekov_page(dt: float, duration: float, flips: list[float], finals: str, missing: str) -> str:
+    """The Markdown of ``dzhanibekov.md``: ``finals`` the table body, ``missing`` the list of runs
+    not drawn."""
+    return f"""
 # The Dzhanibekov effect in every engine
 
 The bundled case `dzhanibekov`: I = diag(1, 2, 3) kg m^2, spinning at 5 rad/s about the intermediate
@@ -563,8 +611,7 @@ Not drawn:
 
 The exact motion; the box has the case's inertia (edges in proportion sqrt(2) : 1 : 0.1); the arrow
 is the body's intermediate (y) axis.
-""")
-    return res
+"""
 
 
 def _flip_times(t: np.ndarray, wy: np.ndarray) -> list[float]:

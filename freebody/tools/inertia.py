@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
+from .. import tolerances as tol
 from ..errors import InputError
 from ..reference_impl import approx, massprops, primitives
 from ..reference_impl.mesh import MeshError, TriangleMesh, mass_properties
@@ -91,14 +91,9 @@ def load_target(target: str, size, *, density: float | None = None, mass: float 
 
 # --- text ---------------------------------------------------------------------------------------
 
-# Shown as 0: entries below this fraction of their array's scale are rounding noise of the
-# integration (e.g. 1e-22 off-diagonals of a symmetric body); the JSON keeps the raw numbers.
-DISPLAY_ZERO_RTOL = 1e-12
-
-
 def _vec(a, scale: float | None = None) -> str:
     a = np.asarray(a, dtype=float)
-    cut = DISPLAY_ZERO_RTOL * (np.max(np.abs(a)) if scale is None else scale)
+    cut = tol.INERTIA_DISPLAY_ZERO_RTOL * (np.max(np.abs(a)) if scale is None else scale)
     return "[" + ", ".join(f"{(0.0 if abs(x) <= cut else x): .10g}" for x in a) + "]"
 
 
@@ -221,24 +216,21 @@ def compare_table(rows: list[dict]) -> str:
 
 def write_compare(t: Target, rows: list[dict], out_dir: Path, schema_version: int) -> tuple[Path, Path]:
     """Write ``inertia_<name>.png`` (log-log errors vs N) and ``inertia_<name>.json``; their paths."""
-    from ..results.document import write_json_atomic
+    from ..results.document import document_header
+    from ..results.io import write_json_atomic
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     png = out_dir / f"inertia_{t.name}.png"
     js = out_dir / f"inertia_{t.name}.json"
     _plot(t, rows, png)
-    write_json_atomic(js, {
-        "schema_version": schema_version, "freebody_version": __version__, "target": t.label,
-        "kind": t.kind, "shape": t.shape, "size": t.size, "density": t.density, "given_mass": t.given_mass,
-        "exact": {"volume": t.volume, "mass": t.mass, "com": t.com, "inertia": t.inertia},
-        "rows": rows,
-    })
+    write_json_atomic(js, document_header(
+        schema_version, target=t.label,
+        kind=t.kind, shape=t.shape, size=t.size, density=t.density, given_mass=t.given_mass,
+        exact={"volume": t.volume, "mass": t.mass, "com": t.com, "inertia": t.inertia},
+        rows=rows,
+    ))
     return png, js
-
-
-# Plotted errors below this are rounding noise (e.g. the COM of a symmetric shape): left out.
-PLOT_NOISE_FLOOR = 1e-12
 
 
 def _plot(t: Target, rows: list[dict], path: Path) -> None:
@@ -258,7 +250,7 @@ def _plot(t: Target, rows: list[dict], path: Path) -> None:
         plotted = []
         for method, (style, colour) in styles.items():
             pts = [(r["resolution"], r[key]) for r in rows if r["method"] == method and r["samples"]
-                   and math.isfinite(r[key]) and r[key] > PLOT_NOISE_FLOOR]
+                   and math.isfinite(r[key]) and r[key] > tol.INERTIA_PLOT_NOISE_FLOOR]
             if pts:
                 n, e = zip(*pts)
                 plotted.extend(n)

@@ -21,38 +21,39 @@ runs bit for bit: ``freebody run worst/<case>.toml --engine E --integrator I``.
 """
 from __future__ import annotations
 
-import json
 import math
-import platform
 import sys
 import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, TextIO
+from typing import Callable
 
 import numpy as np
 
-from .. import __version__
 from ..input.casefile import parse_case
 from ..reference_impl.problem import Body, InitialState, Problem
 from ..reference_impl.rotations import matrix_from_quat, quat_normalize
 from ..reference_impl.truth import truth_kind
-from ..results.document import write_json_atomic
+from ..results.document import document_header
+from ..results.io import read_json, write_json_atomic, write_text_atomic
 from ..adapters.base import is_available, load_adapter
 from ..adapters.capture import capture_output
-from ..run import STATUSES, RunSpec, Simulated, TruthCache, execute, expand, finish
+from ..run import STATUSES, RunSpec, Simulated, Status, TruthCache, execute, expand, finish
+from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX,
+                           POSITION_ERROR_MAX, ROTATION_ORTHONORMALITY_ERROR_MAX)
+from ..run.progress import ProgressDisplay
 from ..report.summary import run_label
 
 SWEEP_SCHEMA_VERSION = 1
 
 # The metrics a sweep reduces (maxima over each run, see freebody.run.metrics), with a short label.
 SWEEP_METRICS = {
-    "orientation_error_max_rad": "orientation error max (rad)",
-    "angular_momentum_error_max_rel": "angular momentum error max (relative)",
-    "energy_error_max_rel": "energy error max (relative)",
-    "position_error_max_m": "COM position error max (m)",
-    "rotation_orthonormality_error_max": "||R^T R - 1||_F max (matrix integrators)",
+    ORIENTATION_ERROR_MAX: "orientation error max (rad)",
+    ANGULAR_MOMENTUM_ERROR_MAX_REL: "angular momentum error max (relative)",
+    ENERGY_ERROR_MAX_REL: "energy error max (relative)",
+    POSITION_ERROR_MAX: "COM position error max (m)",
+    ROTATION_ORTHONORMALITY_ERROR_MAX: "||R^T R - 1||_F max (matrix integrators)",
 }
 
 GRAVITY = (0.0, 0.0, -9.81)  # m/s^2, world: the gravity a body gets when its coin says so
@@ -237,30 +238,6 @@ def random_bodies(settings: SweepSettings) -> list[SweepBody]:
 
 # --- running ------------------------------------------------------------------------------------
 
-class BodyProgress:
-    """Progress per body: a rewritten line on a terminal, a line every 10% otherwise (CI logs)."""
-
-    def __init__(self, total: int, stream: TextIO | None = None, enabled: bool = True):
-        self.total, self.done = total, 0
-        self.stream = stream or sys.stderr
-        self.enabled = enabled and total > 0
-        self.tty = self.enabled and self.stream.isatty()
-        self.t0 = time.perf_counter()
-        self.every = max(1, total // 10)
-
-    def update(self, name: str, counts: dict) -> None:
-        self.done += 1
-        if not self.enabled:
-            return
-        line = (f"[{self.done}/{self.total} bodies] {time.perf_counter() - self.t0:6.1f}s "
-                + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"  ({name})")
-        if self.tty:
-            self.stream.write("\r\033[K" + line[:150] + ("\n" if self.done == self.total else ""))
-        elif self.done % self.every == 0 or self.done == self.total:
-            self.stream.write(line + "\n")
-        self.stream.flush()
-
-
 def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[str] | None = None,
                progress: bool = True, precisions: list[str] | None = None) -> list[dict]:
     """Run every body on every selected engine and integrator at the sweep's time steps.
@@ -277,7 +254,7 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
     by_case: dict[str, list[RunSpec]] = {}
     for s in specs:
         by_case.setdefault(s.problem.name, []).append(s)
-    bar = BodyProgress(len(bodies), enabled=progress)
+    bar = ProgressDisplay(len(bodies), "bodies", enabled=progress, every=len(bodies) // 10)
     counts = {s: 0 for s in STATUSES}
     runs = []
     for body in bodies:
@@ -293,7 +270,7 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
             run.pop("trajectory", None)
             counts[run["status"]] += 1
             runs.append(run)
-        bar.update(body.problem.name, counts)
+        bar.update(", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"  ({body.problem.name})")
     return runs
 
 
@@ -375,11 +352,12 @@ def summarize_runs(runs: list[dict]) -> dict:
                  "precision": rs[0].get("precision", "float64"),
                  "runs": len(rs), "status": {s: sum(r["status"] == s for r in rs) for s in STATUSES},
                  "metrics": {}}
-        messages = sorted({r["message"] for r in rs if r["status"] in ("skipped", "failed") and r["message"]})
+        messages = sorted({r["message"] for r in rs
+                           if r["status"] in (Status.SKIPPED, Status.FAILED) and r["message"]})
         if messages:
             entry["messages"] = messages[:3]
         for key in SWEEP_METRICS:
-            pairs = [(r["metrics"].get(key), r["case"]) for r in rs if r["status"] == "ok"]
+            pairs = [(r["metrics"].get(key), r["case"]) for r in rs if r["status"] == Status.OK]
             pairs = [(v, c) for v, c in pairs if v is not None]
             if not pairs:
                 continue
@@ -401,7 +379,7 @@ def worst_cases(summary: dict, runs: list[dict]) -> list[dict]:
                 "precision": entry["precision"], "dt": entry["dt"]}
         for key, stats in entry["metrics"].items():
             out.append({**base, "reason": key, "value": stats["worst"], "case": stats["worst_case"]})
-        bad = [r for r in runs if group_label(r) == label and r["status"] in ("diverged", "failed")]
+        bad = [r for r in runs if group_label(r) == label and r["status"] in (Status.DIVERGED, Status.FAILED)]
         for r in bad[:MAX_NON_OK_PER_GROUP]:
             out.append({**base, "reason": r["status"], "value": r.get("diverged_at_s"), "case": r["case"],
                         "message": r["message"]})
@@ -442,28 +420,25 @@ def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | 
         w["file"] = f"worst/{w['case']}.toml"
         w["command"] = reproduce_command(w, w["file"])  # relative to the sweep's directory
     wall = time.perf_counter() - t0
-    doc = {
-        "schema_version": SWEEP_SCHEMA_VERSION,
-        "kind": "freebody sweep",
-        "freebody_version": __version__,
-        "platform": f"{platform.system()} {platform.machine()} Python {platform.python_version()}",
-        "engines": engine_versions(engines),
-        "seed": settings.seed,
-        "count": settings.count,
-        "settings": settings.as_dict(),
-        "bodies": [_body_record(b) for b in bodies],
-        "runs": runs,
-        "summary": summary,
-        "worst_cases": worst,
-        "wall_time_s": wall,
-    }
+    doc = document_header(
+        SWEEP_SCHEMA_VERSION, engine_versions(engines),
+        kind="freebody sweep",
+        seed=settings.seed,
+        count=settings.count,
+        settings=settings.as_dict(),
+        bodies=[_body_record(b) for b in bodies],
+        runs=runs,
+        summary=summary,
+        worst_cases=worst,
+        wall_time_s=wall,
+    )
     report = format_report(doc, str(out_dir) if out_dir is not None else None)
     if out_dir is not None:
         out_dir = Path(out_dir)
         for name in sorted({w["case"] for w in worst}):
-            _write_text(out_dir / "worst" / f"{name}.toml", texts[name])
+            write_text_atomic(out_dir / "worst" / f"{name}.toml", texts[name])
         write_json_atomic(out_dir / "sweep.json", doc)
-        _write_text(out_dir / "sweep.txt", report + "\n")
+        write_text_atomic(out_dir / "sweep.txt", report + "\n")
     return SweepOutcome(doc, report, wall)
 
 
@@ -474,13 +449,6 @@ def _body_record(b: SweepBody) -> dict:
             "linear_velocity": pb.initial.linear_velocity.tolist(),
             "angular_velocity": pb.initial.angular_velocity.tolist(), "gravity": pb.gravity.tolist(),
             **b.params}
-
-
-def _write_text(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 def _g(x) -> str:
@@ -507,14 +475,15 @@ def format_report(doc: dict, out_dir: str | None) -> str:
                   f"{'engine/integrator dt':<{w}}  {'ok/runs':>9}  {'median':>9}  {'p95':>9}  {'worst':>9}  worst case"]
         for label, e in rows:
             m = e["metrics"][key]
-            lines.append(f"{label:<{w}}  {e['status']['ok']:>4}/{e['runs']:<4}  {_g(m['median']):>9}  "
+            lines.append(f"{label:<{w}}  {e['status'][Status.OK]:>4}/{e['runs']:<4}  {_g(m['median']):>9}  "
                          f"{_g(m['p95']):>9}  {_g(m['worst']):>9}  {m['worst_case']}")
-    not_ok = [(label, e) for label, e in summary.items() if e["status"]["ok"] < e["runs"]]
+    not_ok = [(label, e) for label, e in summary.items() if e["status"][Status.OK] < e["runs"]]
     if not_ok:
         lines += ["", "not ok:"]
         for label, e in not_ok:
-            parts = ", ".join(f"{n} {st}" for st, n in e["status"].items() if n and st != "ok")
-            bad = [c["case"] for c in doc["worst_cases"] if c["group"] == label and c["reason"] in ("diverged", "failed")]
+            parts = ", ".join(f"{n} {st}" for st, n in e["status"].items() if n and st != Status.OK)
+            bad = [c["case"] for c in doc["worst_cases"]
+                   if c["group"] == label and c["reason"] in (Status.DIVERGED, Status.FAILED)]
             more = f" (e.g. {', '.join(bad)})" if bad else ""
             lines.append(f"  {label}: {parts}{more}")
             for msg in e.get("messages", []):
@@ -536,12 +505,7 @@ def load_sweep(path: str | Path) -> dict:
     p = Path(path)
     if p.is_dir():
         p = p / "sweep.json"
-    try:
-        doc = json.loads(p.read_text())
-    except OSError as e:
-        raise InputError(f"{p}: cannot read: {e.strerror or e}") from None
-    except json.JSONDecodeError as e:
-        raise InputError(f"{p}: not valid JSON: {e.msg} (line {e.lineno})") from None
+    doc = read_json(p, str(p))
     if not isinstance(doc, dict) or doc.get("schema_version") != SWEEP_SCHEMA_VERSION:
         raise InputError(f"{p}: schema_version: expected {SWEEP_SCHEMA_VERSION}; re-run freebody sweep "
                          "with this version")

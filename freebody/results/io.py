@@ -1,0 +1,110 @@
+"""Reading and writing files: every file freebody writes (results.json, trajectory and shared-truth npz files,
+reports, baselines, sweep, bench and inertia documents, worst-case case files) goes through here.
+
+A file is written to a temporary file in its destination folder, flushed to the disk (fsync) and
+renamed over the destination (``os.replace``), so whoever reads it, or a kill at any moment, sees
+the old file or the new one, never a part.  The one permission rule: a written file gets the mode
+a plain ``open()`` would give it, 0o666 less the user's umask (the kernel applies the umask when
+the temporary file is created; ``tempfile.mkstemp`` would make it 0600).  A temporary file is
+named ``.<name>.<8 random characters>.tmp`` (:func:`is_temporary`).
+
+JSON is written with sorted keys, numpy values as plain Python and non-finite numbers as null
+(:func:`freebody.numbers.finite_or_none`: JSON has no NaN or inf; a run's status says why a
+number is missing).
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import re
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..numbers import finite_or_none
+
+_RANDOM = random.SystemRandom()  # temporary-file names; not the user's seeded global generator
+_NAME_CHARS = "abcdefghijklmnopqrstuvwxyz0123456789_"
+_TEMPORARY = re.compile(r"\..+\.[a-z0-9_]{8}\.tmp")
+
+
+def json_safe(obj):
+    """``obj`` with numpy scalars and arrays as plain Python and non-finite floats as None, recursively."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, np.generic):
+        return json_safe(obj.item())
+    if isinstance(obj, float):
+        return finite_or_none(obj)
+    return obj
+
+
+def read_json(path: Path, where: str):
+    """The parsed JSON of a file; InputError starting with ``where`` if it cannot be read or parsed."""
+    try:
+        text = Path(path).read_text()
+    except FileNotFoundError:
+        raise InputError(f"{where}: no such file") from None
+    except OSError as e:
+        raise InputError(f"{where}: cannot read: {e.strerror or e}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as e:
+        raise InputError(f"{where}: not valid JSON: {e.msg} (line {e.lineno}, column {e.colno})") from None
+
+
+def is_temporary(name: str) -> bool:
+    """Whether a file name is that of a temporary file of this module (left by a killed writer)."""
+    return _TEMPORARY.fullmatch(name) is not None
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write text (UTF-8) atomically."""
+    _write_atomic(path, lambda f: f.write(text.encode("utf-8")))
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write JSON (sorted keys, indent 1, non-finite -> null, a final newline) atomically."""
+    write_text_atomic(path, json.dumps(json_safe(data), sort_keys=True, indent=1, allow_nan=False) + "\n")
+
+
+def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True) -> None:
+    """Write arrays to an npz file (``np.savez_compressed``, or ``np.savez``) atomically."""
+    _write_atomic(path, lambda f: (np.savez_compressed if compressed else np.savez)(f, **arrays))
+
+
+def _write_atomic(path: Path, write) -> None:
+    """Create the parent folders, ``write(binary file)`` to a new temporary file beside ``path``,
+    fsync it and rename it to ``path``; the temporary file is removed if anything fails."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = _new_temporary(path)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _new_temporary(path: Path) -> tuple[int, str]:
+    """A new, empty temporary file beside ``path``, opened for writing: (descriptor, path).  Created
+    with mode 0o666, which the kernel reduces by the umask as for any new file."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0) | getattr(os, "O_BINARY", 0)
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{''.join(_RANDOM.choices(_NAME_CHARS, k=8))}.tmp"
+        try:
+            return os.open(tmp, flags, 0o666), str(tmp)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{path.parent}: no free temporary file name for {path.name}")
