@@ -285,7 +285,8 @@ class EngineEntry(NamedTuple):
     import_name : the engine's top-level Python module (``find_spec`` says whether it is installed).
     module, cls : where its adapter class lives.  install_hint : how to install the engine.
     cache_env : an environment variable naming a folder where the engine keeps compiled code
-        (JIT engines): worker processes of one invocation are given one shared folder.
+        (JIT engines): worker processes of one invocation are given one shared folder.  None for
+        an engine that keeps a persistent cache of its own (mjx).
     """
 
     import_name: str
@@ -302,8 +303,10 @@ ENGINES: dict[str, EngineEntry] = {
     "mujoco": EngineEntry("mujoco", "freebody.adapters.mujoco_adapter", "MujocoAdapter"),
     "pybullet": EngineEntry("pybullet", "freebody.adapters.pybullet_adapter", "PybulletAdapter"),
     "dart": EngineEntry("dartpy", "freebody.adapters.dart_adapter", "DartAdapter"),
+    # no cache_env: the mjx adapter keeps JAX's compilations in a persistent per-user folder
+    # (JAX_COMPILATION_CACHE_DIR or ~/.cache/freebody/jax) shared by every process and invocation
     "mjx": EngineEntry("jax", "freebody.adapters.mjx_adapter", "MjxAdapter",
-                       "pip install 'freebody[jax]'", cache_env="JAX_COMPILATION_CACHE_DIR"),
+                       "pip install 'freebody[jax]'"),
 }
 
 # The engine whose runs are freebody's own reference maps: shared with scheme identification (so

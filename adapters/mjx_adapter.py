@@ -23,8 +23,33 @@ padded to ``CHUNK_STEPS`` with steps that leave the Data as it is (``lax.cond`` 
 index), so the Data carried on is that of the last real step and a run cut into pieces of any
 size is the one-piece run bit for bit.  The compiled executables are kept in a module-level
 cache; ``compile_time_s`` on the adapter is the time this run spent tracing and compiling (0 when
-the cache had it), ``step_time_s`` the time spent stepping.  Set the JAX option
-``JAX_COMPILATION_CACHE_DIR`` to keep compilations across processes.
+the cache had it), ``step_time_s`` the time spent stepping.
+
+One structure per (integrator, precision).  MJX keeps part of a model as static structure (numpy
+arrays hashed into the pytree's aux data).  For one free body the only static facts that differ
+between bodies are those of MuJoCo's "simple body" optimisation: a body whose principal frame is
+its body frame (inertia diagonal with Ixx >= Iyy >= Izz: MuJoCo sorts the principal moments) gets
+a diagonal mass-matrix sparsity (``M_rownnz``, ``M_rowadr``, ``M_colind``, ``nC``,
+``dof_simplenum``, ``body_simple``, ``body_sameframe``); any other body the full lower triangle.
+On CPU (dense mass matrix) MJX uses that sparsity in one place only, the mask that
+``support.make_m`` multiplies the mass matrix by.  Giving every body the full pattern would keep
+the round-off off-diagonal terms of a principal-frame body and change its trajectory in the last
+bits, so instead :func:`_normalise` gives every model the full pattern's structure and passes the
+body's own mask as a runtime argument, which a copy of ``make_m``'s dense branch (in force only
+while the adapter traces, and only for the ``make_m`` source it was checked against) multiplies
+by: the same arithmetic, one compilation for all bodies (bit for bit the un-normalised model's
+trajectories: tests/test_mjx_structure.py, and the default suite's 210 mjx runs).
+
+Persistent compilation cache.  Importing this module points JAX's persistent compilation cache
+at ``$XDG_CACHE_HOME/freebody/jax`` (default ``~/.cache/freebody/jax``, created with the user's
+umask) unless ``JAX_COMPILATION_CACHE_DIR`` (or ``jax_compilation_cache_dir``) names another
+folder, and lets JAX keep every compiled program however quick its compilation; JAX's own
+``JAX_ENABLE_COMPILATION_CACHE=false`` turns it off.  A compilation found there costs only
+tracing and loading (a few tenths of a second instead of seconds), in serial runs and in every
+worker process alike, across invocations.  Processes compiling the same (kind, integrator,
+precision) at once take turns (a lock file in the cache folder), so the second one loads what the
+first compiled instead of compiling it again.  :data:`COMPILE_STATS` counts this process's
+compilations and disk loads.
 
 Per-step loads are a (steps, _ROW) float array computed before each chunk from the run's
 :class:`~freebody.adapters.loads.LoadSchedule` (``self.loads``); inside the scan the
@@ -71,9 +96,15 @@ import warp" on stdout when NVIDIA Warp is absent: the import is done with stdou
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import hashlib
 import importlib.metadata
 import importlib.util
+import inspect
 import io
+import os
+import re
+import threading
 import time
 from typing import ClassVar
 
@@ -90,8 +121,17 @@ with contextlib.redirect_stdout(io.StringIO()):  # mjx prints Warp's absence on 
 import jax.numpy as jnp  # noqa: E402
 import mujoco  # noqa: E402
 
+try:  # private: the one function whose mask _normalise turns into an argument
+    from mujoco.mjx._src import support as _mjx_support  # noqa: E402
+except ImportError:  # another MJX layout: no normalisation (one compilation per structure)
+    _mjx_support = None
+try:
+    import fcntl  # noqa: E402
+except ImportError:  # no POSIX file locks (Windows): processes may compile the same program twice
+    fcntl = None
+
 from ..reference_impl.conventions import Trajectory  # noqa: E402
-from ..reference_impl.problem import Problem  # noqa: E402
+from ..reference_impl.problem import Body, InitialState, Problem  # noqa: E402
 from .base import Adapter, BatchRun, UnsupportedOption  # noqa: E402
 from .loads import LoadSchedule  # noqa: E402
 from .mujoco_adapter import MujocoAdapter, _trajectory  # noqa: E402
@@ -116,6 +156,166 @@ _ROW = 24
 
 # compiled executables: key -> jax.stages.Compiled
 _COMPILED: dict = {}
+
+# This process's compilations: "compiled" (XLA compiled it), "from_disk" (JAX's persistent cache
+# had it), "seconds" (tracing, lowering, waiting for another process and compiling or loading).
+COMPILE_STATS: dict = {"compiled": 0, "from_disk": 0, "seconds": 0.0}
+
+
+# --- the persistent compilation cache -------------------------------------------------------------
+
+def default_cache_dir() -> str:
+    """Where freebody keeps JAX's compiled programs: ``$XDG_CACHE_HOME/freebody/jax``, else
+    ``~/.cache/freebody/jax``."""
+    base = os.environ.get("XDG_CACHE_HOME", "")
+    if not os.path.isabs(base):  # unset, empty or relative: the XDG default
+        base = os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "freebody", "jax")
+
+
+def _use_persistent_cache() -> str | None:
+    """Point JAX's persistent compilation cache at :func:`default_cache_dir` unless a folder is
+    configured already (``JAX_COMPILATION_CACHE_DIR`` or ``jax_compilation_cache_dir``), and cache
+    programs of any compile time (JAX's default keeps only those over 1 s) unless the user chose a
+    threshold.  Returns the folder in use, or None (the default folder cannot be created)."""
+    folder = jax.config.jax_compilation_cache_dir
+    if not folder:
+        folder = default_cache_dir()
+        try:
+            os.makedirs(folder, exist_ok=True)  # mode 0o777 & ~umask
+        except OSError:
+            return None
+        jax.config.update("jax_compilation_cache_dir", folder)
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    if "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)  # -1: any size
+    return folder
+
+
+CACHE_DIR = _use_persistent_cache()
+
+_DISK_HITS = [0]  # JAX's persistent-cache hits in this process (its monitoring events)
+
+
+def _count_disk_hit(event: str, **_kwargs) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _DISK_HITS[0] += 1
+
+
+jax.monitoring.register_event_listener(_count_disk_hit)
+
+
+@contextlib.contextmanager
+def _machine_lock(label: str):
+    """Hold an exclusive lock named ``label`` in the cache folder while compiling, so that
+    processes (parallel workers) compiling the same program take turns and the later ones load it
+    from the cache.  No lock without a cache folder or POSIX locks (only compile time is lost)."""
+    folder = jax.config.jax_compilation_cache_dir
+    if not folder or fcntl is None or not jax.config.jax_enable_compilation_cache:
+        yield
+        return
+    try:
+        locks = os.path.join(folder, "freebody-locks")
+        os.makedirs(locks, exist_ok=True)
+        f = open(os.path.join(locks, re.sub(r"[^A-Za-z0-9_.-]", "_", label) + ".lock"), "a+b")
+    except OSError:
+        yield
+        return
+    with f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+# --- one structure for every free body: the mass-matrix mask as an argument -----------------------
+
+# The fields of MuJoCo's "simple body" optimisation (see the module docstring), taken from a body
+# whose principal frame is not its body frame.
+_SPARSITY_FIELDS = ("nC", "M_rownnz", "M_rowadr", "M_colind", "dof_simplenum", "body_simple",
+                    "body_sameframe")
+# sha256 of the source of mujoco.mjx._src.support.make_m whose dense branch _make_m_masked copies
+# (mujoco-mjx 3.17.0); with any other source the models are left as they are.
+_MAKE_M_SHA256 = "bc1ff2f7a212659abd782e30b62b7903de30a66484557e635d0a42ae2892cf0d"
+_MASS_MASK: contextvars.ContextVar = contextvars.ContextVar("freebody_mjx_mass_mask", default=None)
+_PATCH_LOCK = threading.Lock()
+_TEMPLATE: dict = {}  # the full pattern's fields, built once
+
+
+def _make_m_checked() -> bool:
+    """Whether MJX's make_m is the one _make_m_masked copies."""
+    try:
+        source = inspect.getsource(_mjx_support.make_m)
+    except (AttributeError, OSError, TypeError):
+        return False
+    return hashlib.sha256(source.encode()).hexdigest() == _MAKE_M_SHA256
+
+
+NORMALISE = _mjx_support is not None and _make_m_checked()
+
+
+def _make_m_masked(m, a, b, d=None):
+    """MJX's ``support.make_m`` with the dense mask taken from :data:`_MASS_MASK` (a traced
+    (nv, nv) bool array) instead of the model's static sparsity: the same operations."""
+    mask = _MASS_MASK.get()
+    if mask is None or _mjx_support.is_sparse(m):
+        return _MAKE_M(m, a, b, d)
+    qm = a @ b.T
+    if d is not None:
+        qm += jnp.diag(d)
+    qm = qm * mask
+    qm = qm + jnp.tril(qm, -1).T
+    return qm
+
+
+_MAKE_M = _mjx_support.make_m if _mjx_support is not None else None
+
+
+@contextlib.contextmanager
+def _masked_make_m():
+    """MJX's make_m replaced by :func:`_make_m_masked` for the block (the adapter's tracing).
+    Outside a traced call with a mask it behaves as MJX's own."""
+    if _MAKE_M is None:
+        yield
+        return
+    with _PATCH_LOCK:
+        _mjx_support.make_m = _make_m_masked
+        try:
+            yield
+        finally:
+            _mjx_support.make_m = _MAKE_M
+
+
+def _full_pattern() -> dict:
+    """The sparsity fields of a free body whose principal frame is not its body frame (MuJoCo
+    compiles it; built once)."""
+    if not _TEMPLATE:
+        inertia = np.array([[2.0, 0.3, 0.1], [0.3, 3.0, 0.2], [0.1, 0.2, 4.0]])
+        pb = Problem("structure", "", Body(1.0, inertia),
+                     InitialState([0, 0, 0], [1, 0, 0, 0], [0, 0, 0], [0, 0, 0]), [0, 0, 0],
+                     duration=1.0)
+        c = MujocoAdapter(pb, 0.01, "Euler", "float64")
+        try:
+            mx = mjx.put_model(c.model)
+        finally:
+            c.close()
+        _TEMPLATE.update({f: getattr(mx, f) for f in _SPARSITY_FIELDS})
+    return _TEMPLATE
+
+
+def _normalise(mx):
+    """(model with the full pattern's structure, its own dense mass-matrix mask (nv, nv) bool),
+    or (mx, None) when this MJX's make_m is not the checked one, the mass matrix is sparse or the
+    model is not one free body."""
+    if (not NORMALISE or _mjx_support.is_sparse(mx) or mx.nbody != 2 or mx.nv != 6
+            or mx.njnt != 1):
+        return mx, None
+    i = np.repeat(np.arange(mx.nv), mx.M_rownnz)
+    mask = np.zeros((mx.nv, mx.nv), dtype=bool)
+    mask[i, mx.M_colind] = True
+    return mx.replace(**_full_pattern()), jnp.asarray(mask)
 
 
 def _x64_scope(on: bool):
@@ -178,25 +378,31 @@ def _loaded_step(m, d, row):
     return mjx.step(m, d.replace(xfrc_applied=xfrc))
 
 
-def _chunk(m, d, rows, n):
+def _chunk(m, d, rows, n, mask=None):
     """Scan _loaded_step over the first n of rows (C, _ROW); the C - n steps after them leave the
-    Data as it is.  Returns (Data after step n, qpos (C, 7), qvel (C, 6)): rows n.. repeat the
+    Data as it is.  mask: the body's mass-matrix mask (see :func:`_normalise`), or None for the
+    model's own.  Returns (Data after step n, qpos (C, 7), qvel (C, 6)): rows n.. repeat the
     state of step n."""
     def body(dd, x):
         i, row = x
         dd = jax.lax.cond(i < n, lambda e: _loaded_step(m, e, row), lambda e: e, dd)
         return dd, (dd.qpos, dd.qvel)
-    d, (Q, V) = jax.lax.scan(body, d, (jnp.arange(rows.shape[-2]), rows))
+    token = _MASS_MASK.set(mask)  # read by _make_m_masked while this is traced
+    try:
+        d, (Q, V) = jax.lax.scan(body, d, (jnp.arange(rows.shape[-2]), rows))
+    finally:
+        _MASS_MASK.reset(token)
     return d, Q, V
 
 
 _chunk_jit = jax.jit(_chunk)
 
 
-def _compiled(kind: str, fn, precision: str, args, extra=()):
-    """The compiled ``fn(*args)`` from the cache, compiling on a miss.  Returns (compiled,
-    seconds spent lowering and compiling: 0.0 on a hit).  A float32 compilation is checked to
-    contain no f64 type."""
+def _compiled(kind: str, fn, precision: str, args, extra=(), label: str = ""):
+    """The compiled ``fn(*args)`` from the cache, compiling on a miss (or loading it from JAX's
+    persistent cache).  Returns (compiled, seconds spent lowering and compiling: 0.0 on a hit).
+    A float32 compilation is checked to contain no f64 type.  label (e.g. the integrator) names
+    the lock that processes compiling the same program take turns on."""
     leaves, treedef = jax.tree_util.tree_flatten(args)
     key = (kind, precision, treedef, extra,
            tuple((tuple(np.shape(a)), str(getattr(a, "dtype", type(a).__name__))) for a in leaves))
@@ -204,15 +410,22 @@ def _compiled(kind: str, fn, precision: str, args, extra=()):
     if hit is not None:
         return hit, 0.0
     t0 = time.perf_counter()
-    lowered = fn.lower(*args)
-    if precision == "float32":
-        text = lowered.as_text()
-        if "f64" in text:
-            raise RuntimeError("the float32 MJX computation contains float64 operations "
-                               "(jax_enable_x64 leaked into the float32 scope?)")
-    compiled = lowered.compile()
+    with _machine_lock(f"{kind}-{label}-{precision}"):
+        disk_hits = _DISK_HITS[0]
+        with _masked_make_m():
+            lowered = fn.lower(*args)
+        if precision == "float32":
+            text = lowered.as_text()
+            if "f64" in text:
+                raise RuntimeError("the float32 MJX computation contains float64 operations "
+                                   "(jax_enable_x64 leaked into the float32 scope?)")
+        compiled = lowered.compile()
+        from_disk = _DISK_HITS[0] > disk_hits
     _COMPILED[key] = compiled
-    return compiled, time.perf_counter() - t0
+    spent = time.perf_counter() - t0
+    COMPILE_STATS["from_disk" if from_disk else "compiled"] += 1
+    COMPILE_STATS["seconds"] += spent
+    return compiled, spent
 
 
 # --- building -----------------------------------------------------------------------------------
@@ -223,8 +436,9 @@ def _check(what: str, got, want) -> None:
 
 
 def _build(problem: Problem, dt: float, integrator: str, precision: str, x64_default: bool):
-    """(mjx.Model, mjx.Data, settings) for a problem, inside the caller's x64 scope: the MuJoCo
-    adapter's C model and data moved to JAX, settings read back from the mjx.Model.
+    """(mjx.Model, mjx.Data, settings, mass-matrix mask or None) for a problem, inside the
+    caller's x64 scope: the MuJoCo adapter's C model and data moved to JAX and normalised
+    (:func:`_normalise`), settings read back from the mjx.Model.
     x64_default: jax_enable_x64 outside the scope.  The integrator and precision are already
     checked (by Adapter.__init__, or simulate_batch)."""
     c = MujocoAdapter(problem, dt, integrator, "float64")
@@ -243,7 +457,8 @@ def _build(problem: Problem, dt: float, integrator: str, precision: str, x64_def
         raise RuntimeError(f"mjx data is {dx.qpos.dtype}, not {precision}")
     settings["jax_enable_x64"] = {"default": bool(x64_default), "set": _current_x64()}
     _check("jax_enable_x64 (scoped)", settings["jax_enable_x64"]["set"], precision == "float64")
-    return mx, dx, settings
+    mx, mask = _normalise(mx)
+    return mx, dx, settings, mask
 
 
 def _load_rows(loads: LoadSchedule, k0: int, k1: int, dtype) -> np.ndarray:
@@ -320,8 +535,8 @@ class MjxAdapter(Adapter):
         self._dtype = _DTYPE[self.precision]
         x64_default = _current_x64()
         with _x64(self.precision == "float64"):
-            self._m, self._d, settings = _build(self.problem, self.dt, self.integrator,
-                                                self.precision, x64_default)
+            self._m, self._d, settings, self._mask = _build(self.problem, self.dt, self.integrator,
+                                                            self.precision, x64_default)
         self.settings.update(settings)
         self.compile_time_s = 0.0  # tracing + compiling spent by this adapter, s
         self.step_time_s = 0.0     # stepping, s (excludes compiling)
@@ -343,8 +558,9 @@ class MjxAdapter(Adapter):
                 n = min(CHUNK_STEPS, steps - i)
                 rows = np.zeros((CHUNK_STEPS, _ROW), dtype=dtype)
                 rows[:n] = _load_rows(self.loads, k0 + i, k0 + i + n, dtype)
-                args = (model, data, jnp.asarray(rows), jnp.int32(n))
-                fn, spent = _compiled("chunk", _chunk_jit, self.precision, args)
+                args = (model, data, jnp.asarray(rows), jnp.int32(n), self._mask)
+                fn, spent = _compiled("chunk", _chunk_jit, self.precision, args,
+                                      label=self.integrator)
                 self.compile_time_s += spent
                 t0 = time.perf_counter()
                 data, Qc, Vc = fn(*args)  # the Data after the chunk's last real step
@@ -359,7 +575,7 @@ class MjxAdapter(Adapter):
         return _trajectory(Q, V, self.dt, k0)
 
     def close(self) -> None:
-        self._m = self._d = None
+        self._m = self._d = self._mask = None
 
     # --- batched runs --------------------------------------------------------------------------
     @classmethod
@@ -368,8 +584,9 @@ class MjxAdapter(Adapter):
         """Run many free bodies as one ``jax.vmap``-ped batch of MJX scans.
 
         problems : Problems whose MJX models have the same structure (ValueError otherwise: MJX
-            keeps some facts of a model as static structure, e.g. whether the body frame is the
-            principal frame); mass, inertia, initial state, gravity and loads may differ.
+            keeps some facts of a model as static structure; every free body has the same one
+            when :data:`NORMALISE` holds, see the module docstring); mass, inertia, initial
+            state, gravity and loads may differ.
             dt : s, shared.  steps : number of steps, shared.
         integrator, precision : as for :class:`MjxAdapter`.
         Each body's trajectory is what :meth:`simulate` gives for it alone up to round-off (the
@@ -386,9 +603,10 @@ class MjxAdapter(Adapter):
                      for problem in problems]
             model, model_axes = _stack_models([b[0] for b in built])
             data = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[b[1] for b in built])
-            fn_jit, axes_key = _batch_jit(model, model_axes)
-            Q, V, compile_s, step_s = _run_batch_chunks(fn_jit, axes_key, model, data, schedules,
-                                                        steps, precision)
+            mask, mask_axis = _stack_masks([b[3] for b in built])
+            fn_jit, axes_key = _batch_jit(model, model_axes, mask_axis)
+            Q, V, compile_s, step_s = _run_batch_chunks(fn_jit, axes_key, model, data, mask,
+                                                        schedules, steps, precision, integrator)
         trajectories, diverged = [], []
         for i in range(len(problems)):
             bad = _first_bad(Q[i], V[i])
@@ -410,21 +628,32 @@ class MjxAdapter(Adapter):
 
 # --- batched runs: helpers ------------------------------------------------------------------------
 
-def _batch_jit(model, model_axes):
+def _batch_jit(model, model_axes, mask_axis):
     """(jit(vmap(_chunk)) for the stacked model, its cache key).  The key is the model's static
-    structure (integrator, diagonal inertia, ...) and which leaves vary across the batch: a
-    compiled batch fits only models that agree on both."""
+    structure (integrator, ...) and which leaves (and whether the mass-matrix masks) vary across
+    the batch: a compiled batch fits only models that agree on both."""
     axes_key = (jax.tree_util.tree_structure(model), tuple(
-        a is None for a in jax.tree_util.tree_leaves(model_axes, is_leaf=lambda x: x is None)))
+        a is None for a in jax.tree_util.tree_leaves(model_axes, is_leaf=lambda x: x is None)),
+        mask_axis)
     fn_jit = _BATCH_JIT.get(axes_key)
     if fn_jit is None:
         fn_jit = _BATCH_JIT[axes_key] = jax.jit(
-            jax.vmap(_chunk, in_axes=(model_axes, 0, 0, None)))
+            jax.vmap(_chunk, in_axes=(model_axes, 0, 0, None, mask_axis)))
     return fn_jit, axes_key
 
 
-def _run_batch_chunks(fn_jit, axes_key, model, data, schedules: list[LoadSchedule], steps: int,
-                      precision: str):
+def _stack_masks(masks):
+    """(mask argument, its vmap axis) for the bodies' mass-matrix masks (None: not normalised;
+    one mask when all are equal)."""
+    if masks[0] is None:
+        return None, None
+    if all(np.array_equal(np.asarray(masks[0]), np.asarray(m)) for m in masks[1:]):
+        return masks[0], None
+    return jnp.stack(masks), 0
+
+
+def _run_batch_chunks(fn_jit, axes_key, model, data, mask, schedules: list[LoadSchedule],
+                      steps: int, precision: str, integrator: str):
     """``steps`` steps of the stacked batch in compiled chunks of CHUNK_STEPS, inside the
     caller's x64 scope.  Returns (qpos (B, steps + 1, 7), qvel (B, steps + 1, 6) as float64,
     seconds compiling, seconds stepping)."""
@@ -441,8 +670,8 @@ def _run_batch_chunks(fn_jit, axes_key, model, data, schedules: list[LoadSchedul
         rows = np.zeros((B, CHUNK_STEPS, _ROW), dtype=dtype)
         for i, loads in enumerate(schedules):
             rows[i, :n] = _load_rows(loads, k, k + n, dtype)
-        args = (model, data, jnp.asarray(rows), jnp.int32(n))
-        fn, spent = _compiled("batch", fn_jit, precision, args, extra=axes_key)
+        args = (model, data, jnp.asarray(rows), jnp.int32(n), mask)
+        fn, spent = _compiled("batch", fn_jit, precision, args, extra=axes_key, label=integrator)
         compile_s += spent
         t0 = time.perf_counter()
         data, Qc, Vc = fn(*args)

@@ -2,9 +2,10 @@
 every engine alike.
 
 Conventions: canonical throughout (no conversion).  Integrators: every name in
-``reference_impl.integrators.INTEGRATORS``.  Always available (numpy only).  The integrators are
-whole-trajectory loops from the initial state: :meth:`prepare` integrates the run once and
-:meth:`advance` hands out its samples.
+``reference_impl.integrators.INTEGRATORS``.  Always available (numpy and numba, both required
+dependencies of freebody).  The integrators are whole-trajectory loops from the initial state,
+compiled (``reference_impl.compiled``, through ``integrators.simulate``): :meth:`prepare` integrates
+the run once and :meth:`advance` hands out its samples.
 """
 from __future__ import annotations
 

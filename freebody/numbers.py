@@ -11,5 +11,8 @@ def finite_or_none(x) -> float | None:
     """A finite float, or None for anything else (None, NaN, inf, a string, a bool)."""
     if isinstance(x, bool) or not isinstance(x, (int, float, np.floating, np.integer)):
         return None
-    x = float(x)
+    try:
+        x = float(x)
+    except OverflowError:  # an integer beyond float64's range (e.g. 400 digits in a JSON file)
+        return None
     return x if math.isfinite(x) else None

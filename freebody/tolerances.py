@@ -37,6 +37,24 @@ UNIT_QUATERNION_RTOL = 1e-9  # | |q| - 1 | above this: normalise with a warning
 # the two numbers), not "shorter than dt": case files, ``freebody run --dt``, ``freebody sweep``.
 DURATION_VS_DT_RTOL = 1e-12
 
+# --- representable inputs (case files, meshes, command-line options) ---------------------------
+# Every number of a case (and ``freebody inertia``'s sizes and densities) is at most this in
+# magnitude: the squares and pairwise products the physics forms (|w|^2, I w, the size^2 in a
+# shape's inertia, the eigen-decomposition of I) then stay finite in float64 (largest 1.8e308).  Far
+# beyond any body: the observable universe is ~1e27 m across and ~1e53 kg.
+INPUT_MAGNITUDE_MAX = 1e150
+# Positive quantities (mass, density, sizes, dt, a body's volume and principal moments) are at least
+# this: their squares and reciprocals stay normal float64 numbers (smallest normal 2.2e-308), so a
+# 1e-320 is not silently a zero (or its reciprocal an infinity).
+INPUT_POSITIVE_MIN = 1e-150
+# Mesh coordinates (m) are at most this in magnitude: the polyhedral mass-property integrals multiply
+# five coordinates (a determinant times a quadratic), and (1e60)^5 = 1e300 stays finite in float64.
+MESH_COORDINATE_MAX = 1e60
+# Steps of one run at most this (round(duration / dt), duration_steps, --save-every): 1e9 steps are
+# ~100 GB of trajectory samples and hours of stepping; beyond, a run can neither finish nor be
+# stored (numpy refuses the arrays: "Maximum allowed dimension exceeded").
+MAX_STEPS_PER_RUN = 10**9
+
 # --- scheme identification ----------------------------------------------------------------------
 SCHEME_MATCH_RAD = 1e-6  # an engine "reproduces" a reference map if its orientation stays within
                          # 1e-6 rad of it: round-off differences between float64 codes stay far below
@@ -126,3 +144,51 @@ INERTIA_DISPLAY_ZERO_RTOL = 1e-12
 INERTIA_PLOT_NOISE_FLOOR = 1e-12
 # Report plots: a log-axis tick whose log10 is within this of an integer is labelled as a decade.
 PLOT_DECADE_TICK_ATOL = 1e-9
+
+# --- input files: regular files only, and how large (freebody/results/io.read_regular_file) -------
+# Every file freebody reads must be a regular file (a FIFO would block forever, /dev/zero or
+# /dev/urandom would be read until memory runs out) no larger than these.  Measured peaks are of
+# Python's allocations (tracemalloc) while parsing, per byte of the file.
+MIB = 2 ** 20
+# A closed OBJ/STL mesh (``body.mesh``, ``freebody inertia PATH``).  128 MiB is ~2.7 million
+# triangles of binary STL (50 bytes each), or an OBJ of ~2.5 million: far finer than exact mass
+# properties need.  Parsing peaks at ~12 bytes per file byte (binary STL; OBJ ~8.4): ~1.5 GiB.
+MESH_FILE_MAX_BYTES = 128 * MIB
+# A case file: a few hundred bytes; 16 MiB leaves room for generated cases with ~1 million time
+# steps or loads.  tomllib peaks at ~2.3 bytes per byte (~40 MiB).
+CASE_FILE_MAX_BYTES = 16 * MIB
+# A results.json or baseline (``freebody compare``, ``freebody report``): ~1.9 KB per run, so
+# 512 MiB is ~280,000 runs (380 x the default suite's 735).  json.loads peaks at ~3.2 bytes per
+# byte: ~1.6 GiB per document, two for a comparison.  Also sweep.json.
+RESULTS_FILE_MAX_BYTES = 512 * MIB
+# A ``--tolerances`` file: a few dozen lines.
+TOLERANCES_FILE_MAX_BYTES = 1 * MIB
+
+# --- resource estimates before a command starts (freebody/run/budget.py) -------------------------
+# A command whose estimated memory exceeds the memory available (MemAvailable of /proc/meminfo) is
+# refused (exit 2) unless ``--force-large``; one whose estimated time exceeds LONG_RUN_WARNING_S is
+# run with a warning.  The constants below were measured on this project's 2-core test machine with
+# tracemalloc (memory) and wall clocks (time), and rounded up.
+# A run's arrays in its worker: its trajectory, its truth, up to three reference maps (scheme
+# identification), the error series and the copies made while saving, 14 float64 per step each.
+# Measured peaks: 490 (reference rk4) to 730 (mujoco rk4, identified against three maps) bytes per
+# step; 9 trajectories' worth, 1008 bytes per step, covers them.
+RUN_BYTES_PER_STEP = 9 * 14 * 8
+# What the freebody process keeps per run (the spec, the result, results.json being written):
+# measured 12.4 KB per run (2000 runs of 2 steps) at the peak.
+RUN_RECORD_BYTES = 16 * 1024
+# freebody sweep: a body (its problem, its case-file text, its record): measured 4.3 KB.
+SWEEP_BODY_BYTES = 8 * 1024
+# Time: the default suite (735 runs, 4.2e6 steps, all five engines) ran in 268 s with --jobs 1:
+# 64 us per step on average (the reference engine's Python loops and the truths dominate); a run
+# of 2 steps costs 7-9 ms (worker messages, truth, metrics, its file).
+SECONDS_PER_STEP = 64e-6
+SECONDS_PER_RUN = 0.01
+LONG_RUN_WARNING_S = 3600.0  # an estimate beyond an hour is said before the runs start
+# freebody inertia --method particles|voxels (--compare: its finest resolution): bytes per grid
+# cell at the peak.  Measured: voxels 65 (sphere) to 97 (box) for shapes, 29-55 for meshes;
+# particles 105-144 for shapes, ~120 per cell for meshes beyond their fixed part.
+INERTIA_BYTES_PER_CELL = {"voxels": 112, "particles": 192}
+# The mesh inside test works in vectorised blocks of ~100 MB (reference_impl/approx.py): measured
+# up to ~150 MB beyond the per-cell part.
+INERTIA_MESH_FIXED_BYTES = 256 * MIB

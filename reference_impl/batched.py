@@ -2,7 +2,8 @@
 
 Each integrator here computes, for every body of the batch, the same map as its single-body
 counterpart in :mod:`integrators` (same names, same formulas, same outputs) and reproduces it to
-round-off; :mod:`integrators` stays the readable reference, this module is the fast path.
+round-off; :mod:`integrators` stays the readable reference, this module is the fast path for
+many bodies at once (:mod:`compiled` is the fast path for one body).
 
 Bodies may differ in everything: mass, inertia, initial state, and a constant external wrench
 (a force at the COM and a couple, both world frame, acting on every step).  Gravity is shared.

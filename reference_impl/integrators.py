@@ -20,6 +20,12 @@ Integrators (``INTEGRATORS[name]``):
 
 Loads are held constant over a step (every RK4 stage sees the same active set; a load's torque
 arm is evaluated at the stage's state).
+
+Each scheme is one numpy function of a step (``euler_matrix_step``, ``euler_quat_step``,
+``symplectic_euler_step``, ``rk4_step``, ``semi_implicit_step``): this module is the readable
+reference.  :func:`simulate` runs the same maps compiled (:mod:`compiled`: scalar loops, numba),
+150 to 600 times faster; ``simulate(..., compiled=False)`` runs the numpy loops here, which
+the compiled maps are tested against step by step (``tests/test_compiled_maps.py``).
 """
 from __future__ import annotations
 
@@ -69,7 +75,79 @@ def _time(dt: float, steps: int) -> np.ndarray:
     return np.arange(steps + 1) * dt
 
 
-# --- momentum-form integrators on (x, R or q, p, L) -------------------------------------------
+# --- one step of each scheme (numpy, the lecture's formulas) ------------------------------------
+# Each takes the step index k (it picks the loads of step k), the state after k steps and the run's
+# constants, and returns the state after k + 1 steps.  ``reference_impl.compiled`` has the same
+# functions as scalar loops, compiled; tests/test_compiled_maps.py checks them equal step by step.
+
+def euler_matrix_step(k: int, x, R, p, L, dt: float, M: float, I_inv, Mg, wrench: Wrench,
+                      gram: bool = False):
+    """Explicit Euler on (x, R, p, L): x (3,) m world, R (3, 3) body -> world as integrated,
+    p (3,) kg m/s world, L (3,) kg m^2/s world about the COM; Mg (3,) N the weight; optionally
+    Gram-Schmidt on R after the step."""
+    f, tau = wrench(k, x, R)
+    w = R @ I_inv @ R.T @ L  # I(t)^-1 L with R as integrated
+    x, R, p, L = x + dt * p / M, R + dt * skew(w) @ R, p + dt * (f + Mg), L + dt * tau
+    if gram:
+        R = gram_schmidt(R)
+    return x, R, p, L
+
+
+def euler_quat_step(k: int, x, q, p, L, dt: float, M: float, I_inv, g, wrench: Wrench):
+    """Explicit Euler on (x, q, p, L) (q (4,) body -> world), q renormalised after the step."""
+    dx, dq, dp, dL = rigid_body_derivative(k, x, q, p, L, M, I_inv, g, wrench)
+    return x + dt * dx, quat_normalize(q + dt * dq), p + dt * dp, L + dt * dL
+
+
+def symplectic_euler_step(k: int, x, q, p, L, dt: float, M: float, I_inv, g, wrench: Wrench):
+    """Momenta first, then x and q with the new velocities: q+ = Exp(h w+) q (world frame),
+    w+ = R I_b^-1 R^T L+ with the current R."""
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R)
+    p = p + dt * (f + M * g)
+    L = L + dt * tau
+    x = x + dt * p / M
+    w = R @ I_inv @ R.T @ L
+    q = quat_normalize(quat_multiply(quat_from_rotvec(dt * w), q))
+    return x, q, p, L
+
+
+def rk4_step(k: int, x, q, p, L, dt: float, M: float, I_inv, g, wrench: Wrench):
+    """Classic RK4 on (x, q, p, L), q renormalised after the step.  Every stage sees the loads of
+    step k, their torque arms at the stage's state."""
+    def d(x_, q_, p_, L_):
+        return rigid_body_derivative(k, x_, q_, p_, L_, M, I_inv, g, wrench)
+    k1 = d(x, q, p, L)
+    k2 = d(*(y + 0.5 * dt * dy for y, dy in zip((x, q, p, L), k1)))
+    k3 = d(*(y + 0.5 * dt * dy for y, dy in zip((x, q, p, L), k2)))
+    k4 = d(*(y + dt * dy for y, dy in zip((x, q, p, L), k3)))
+    x, q, p, L = (y + dt / 6.0 * (a + 2 * b + 2 * c + e)
+                  for y, a, b, c, e in zip((x, q, p, L), k1, k2, k3, k4))
+    return x, quat_normalize(q), p, L
+
+
+def semi_implicit_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, wrench: Wrench,
+                       implicit_gyro: bool = False):
+    """The engines' map on (x, q, v, w_b): v (3,) m/s world, w_b (3,) rad/s body frame.
+    w_b+ = w_b + h I^-1 (tau_b - w_b x I w_b) (explicit gyroscopic term) or, with
+    ``implicit_gyro``, w_b+ = w_b + J^-1 h (tau_b - w_b x I w_b), J = I + h ([w_b] I - [I w_b]);
+    then v+ = v + h (f/M + g), x+ = x + h v+, q+ = q Exp(h w_b+)."""
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R)
+    tau_b = R.T @ tau
+    rhs = tau_b - np.cross(w_b, I_b @ w_b)
+    if implicit_gyro:
+        J = I_b + dt * (skew(w_b) @ I_b - skew(I_b @ w_b))
+        w_b = w_b + np.linalg.solve(J, dt * rhs)
+    else:
+        w_b = w_b + dt * (I_inv @ rhs)
+    v = v + dt * (f / M + g)
+    x = x + dt * v
+    q = quat_normalize(quat_multiply(q, quat_from_rotvec(dt * w_b)))
+    return x, q, v, w_b
+
+
+# --- whole runs, one Python loop over the steps --------------------------------------------------
 
 def integrate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool = False):
     """Explicit Euler on (x, R, p, L) with R a 3x3 matrix, optionally Gram-Schmidt after each step.
@@ -85,21 +163,25 @@ def integrate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool =
     ps = np.empty((steps + 1, 3)); Ls = np.empty((steps + 1, 3))
     xs[0], Rs[0], ps[0], Ls[0] = x, R, p, L
     for k in range(steps):
-        f, tau = wrench(k, x, R)
-        w = R @ I_inv @ R.T @ L  # I(t)^-1 L with R as integrated
-        x, R, p, L = x + dt * p / M, R + dt * skew(w) @ R, p + dt * (f + Mg), L + dt * tau
-        if gram:
-            R = gram_schmidt(R)
+        x, R, p, L = euler_matrix_step(k, x, R, p, L, dt, M, I_inv, Mg, wrench, gram)
         xs[k + 1], Rs[k + 1], ps[k + 1], Ls[k + 1] = x, R, p, L
     return xs, Rs, ps, Ls
 
 
+def matrix_outputs(Rs: np.ndarray, Ls: np.ndarray, I_inv: np.ndarray):
+    """What a matrix integrator reports of its integrated R (N, 3, 3) and L (N, 3): the quaternion
+    (N, 4) of the nearest rotation, w = R I_b^-1 R^T L (N, 3) rad/s world, ||R^T R - 1||_F (N,)."""
+    ws = np.einsum("nij,jk,nlk,nl->ni", Rs, I_inv, Rs, Ls)
+    return quat_from_matrix(nearest_rotation(Rs)), ws, orthonormality_error(Rs)
+
+
 def _simulate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool) -> Trajectory:
     xs, Rs, ps, Ls = integrate_euler_matrix(problem, dt, steps, gram)
-    M, I_inv = problem.body.mass, problem.body.I_body_inv
-    ws = np.einsum("nij,jk,nlk,nl->ni", Rs, I_inv, Rs, Ls)
-    quats = quat_from_matrix(nearest_rotation(Rs))
-    return Trajectory(_time(dt, steps), xs, quats, ps / M, ws, orthonormality_error(Rs))
+    quats, ws, ortho = matrix_outputs(Rs, Ls, problem.body.I_body_inv)
+    return Trajectory(_time(dt, steps), xs, quats, ps / problem.body.mass, ws, ortho)
+
+
+_QUAT_STEPS = {"euler-quat": euler_quat_step, "symplectic-euler": symplectic_euler_step, "rk4": rk4_step}
 
 
 def _simulate_quat(problem: Problem, dt: float, steps: int, scheme: str) -> Trajectory:
@@ -107,31 +189,12 @@ def _simulate_quat(problem: Problem, dt: float, steps: int, scheme: str) -> Traj
     M, I_b, I_inv, x, q, _, p, L, _, _ = _initial(problem)
     wrench = wrench_function(problem, dt)
     g = problem.gravity
+    step = _QUAT_STEPS[scheme]
     out = Trajectory.empty(steps + 1)
     out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0] = x, q, p / M
     out.angular_velocity[0] = np.array(problem.initial.angular_velocity, float)
     for k in range(steps):
-        if scheme == "euler-quat":
-            dx, dq, dp, dL = rigid_body_derivative(k, x, q, p, L, M, I_inv, g, wrench)
-            x, q, p, L = x + dt * dx, quat_normalize(q + dt * dq), p + dt * dp, L + dt * dL
-        elif scheme == "symplectic-euler":
-            R = matrix_from_quat(q)
-            f, tau = wrench(k, x, R)
-            p = p + dt * (f + M * g)
-            L = L + dt * tau
-            x = x + dt * p / M
-            w = R @ I_inv @ R.T @ L
-            q = quat_normalize(quat_multiply(quat_from_rotvec(dt * w), q))
-        else:  # rk4
-            def d(x_, q_, p_, L_):
-                return rigid_body_derivative(k, x_, q_, p_, L_, M, I_inv, g, wrench)
-            k1 = d(x, q, p, L)
-            k2 = d(*(y + 0.5 * dt * dy for y, dy in zip((x, q, p, L), k1)))
-            k3 = d(*(y + 0.5 * dt * dy for y, dy in zip((x, q, p, L), k2)))
-            k4 = d(*(y + dt * dy for y, dy in zip((x, q, p, L), k3)))
-            x, q, p, L = (y + dt / 6.0 * (a + 2 * b + 2 * c + e)
-                          for y, a, b, c, e in zip((x, q, p, L), k1, k2, k3, k4))
-            q = quat_normalize(q)
+        x, q, p, L = step(k, x, q, p, L, dt, M, I_inv, g, wrench)
         R = matrix_from_quat(q)
         out.position[k + 1], out.quaternion_wxyz[k + 1] = x, q
         out.linear_velocity[k + 1] = p / M
@@ -139,8 +202,6 @@ def _simulate_quat(problem: Problem, dt: float, steps: int, scheme: str) -> Traj
     out.t[:] = _time(dt, steps)
     return out
 
-
-# --- the engines' semi-implicit maps, in body-frame variables (x, q, v, w_b) ---------------------
 
 def _simulate_semi_implicit(problem: Problem, dt: float, steps: int, implicit_gyro: bool) -> Trajectory:
     M, I_b, I_inv, x, q, R, _, _, v, w = _initial(problem)
@@ -150,18 +211,7 @@ def _simulate_semi_implicit(problem: Problem, dt: float, steps: int, implicit_gy
     out = Trajectory.empty(steps + 1)
     out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
     for k in range(steps):
-        R = matrix_from_quat(q)
-        f, tau = wrench(k, x, R)
-        tau_b = R.T @ tau
-        rhs = tau_b - np.cross(w_b, I_b @ w_b)
-        if implicit_gyro:
-            J = I_b + dt * (skew(w_b) @ I_b - skew(I_b @ w_b))
-            w_b = w_b + np.linalg.solve(J, dt * rhs)
-        else:
-            w_b = w_b + dt * (I_inv @ rhs)
-        v = v + dt * (f / M + g)
-        x = x + dt * v
-        q = quat_normalize(quat_multiply(q, quat_from_rotvec(dt * w_b)))
+        x, q, v, w_b = semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, wrench, implicit_gyro)
         out.position[k + 1], out.quaternion_wxyz[k + 1], out.linear_velocity[k + 1] = x, q, v
         out.angular_velocity[k + 1] = matrix_from_quat(q) @ w_b
     out.t[:] = _time(dt, steps)
@@ -190,13 +240,23 @@ INTEGRATORS: dict[str, Integrator] = {
 }
 
 
-def simulate(problem: Problem, integrator: str, dt: float, steps: int) -> Trajectory:
+def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled: bool = True) -> Trajectory:
     """Integrate ``problem`` for ``steps`` steps of ``dt`` with the named integrator.
+
+    compiled : True (default): the compiled scalar maps of :mod:`compiled` (0.1-0.6 us a step);
+        False: the numpy loops of this module (about 75 us a step), the readable reference they are
+        tested against.  Both give the same trajectory to rounding.
 
     A blow-up is not an error here: its samples become inf/NaN and the harness calls it diverged.
     """
+    entry = INTEGRATORS[integrator]  # KeyError for an unknown name, either way
+    if compiled:
+        from .compiled import simulate_compiled  # numba loads on first use, not on import
+        return simulate_compiled(problem, integrator, dt, steps)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        return INTEGRATORS[integrator].simulate(problem, dt, steps)
+        return entry.simulate(problem, dt, steps)
 
 
-__all__ = ["Integrator", "INTEGRATORS", "simulate", "integrate_euler_matrix", "Wrench"]
+__all__ = ["Integrator", "INTEGRATORS", "simulate", "integrate_euler_matrix", "matrix_outputs",
+           "euler_matrix_step", "euler_quat_step", "symplectic_euler_step", "rk4_step",
+           "semi_implicit_step", "Wrench"]

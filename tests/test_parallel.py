@@ -82,9 +82,9 @@ def test_serial_and_parallel_results_are_identical(tmp_path):
     specs = expand([load_case("dzhanibekov"), load_case("offset_push")], ENGINES_COMPARED, None,
                    [0.01, 0.02], 0.2)
     docs = {}
-    for jobs in (1, 2):
+    for jobs in (1, 2):  # 1: in this process (--no-isolation); 2: two worker processes
         docs[jobs], _ = run_specs(specs, tmp_path / str(jobs), ENGINES_COMPARED, progress=False,
-                                  jobs=jobs, save_every=3)
+                                  jobs=jobs, save_every=3, isolate=jobs != 1)
     assert _comparable(docs[1]) == _comparable(docs[2])
     assert docs[1]["engines"] == docs[2]["engines"]
     saved = [r["trajectory"] for r in docs[1]["runs"] if r["trajectory"]]

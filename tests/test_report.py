@@ -136,8 +136,8 @@ def test_every_status_renders_without_nan(run_dir, tmp_path):
     doc = {**doc, "runs": runs + extra + [f32], "engines": {"reference": "0.1.0", "mujoco": None}}
     doc.pop("convergence")
     out = tmp_path / "mixed"
-    (out / "trajectories").mkdir(parents=True)
     for r in runs:
+        (out / r["trajectory"]).parent.mkdir(parents=True, exist_ok=True)
         (out / r["trajectory"]).write_bytes((run_dir / r["trajectory"]).read_bytes())
     f32["trajectory"] = runs[0]["trajectory"]
     md_path, html_path = write_reports(out, doc)

@@ -3,17 +3,22 @@
 Each subcommand is a module ``freebody/cli/<name>_cmd.py`` that defines ``ORDER`` (its place in
 ``--help``), ``add_parser(subparsers)`` and ``run(args) -> int``, and imports nothing heavy (no
 engine, no matplotlib) at module level.  Bad input is an :class:`~freebody.errors.InputError`:
-one line on stderr, exit 2, no traceback (``--debug`` shows it).
+one line on stderr, exit 2, no traceback (``--debug`` shows it).  So is an error of the environment
+(an OSError: a full disk, a file or folder that cannot be written) and a standard output that cannot
+be written (a closed pipe, a full device): the output is incomplete, so the exit code is never 0.
+User-provided text in these lines is escaped (:func:`~freebody.errors.printable`).
 """
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import os
 import pkgutil
 import sys
 import warnings
 
-from ..errors import InputError
+from ..errors import InputError, printable
 
 
 def _commands() -> dict[str, object]:
@@ -25,6 +30,7 @@ def _commands() -> dict[str, object]:
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message):  # argparse's own errors: one line, exit 2
+        message = printable(message)
         self.exit(2, f"freebody: error: {message} (see freebody {self.prog.split()[-1]} --help)\n"
                   if " " in self.prog else f"freebody: error: {message} (see freebody --help)\n")
 
@@ -42,10 +48,80 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _warning_line(message, category, filename, lineno, file=None, line=None):
-    sys.stderr.write(f"freebody: warning: {message}\n")
+    _stderr_line(f"freebody: warning: {printable(message)}")
+
+
+def _stderr_line(text: str) -> None:
+    """Write one line to stderr; nothing if stderr itself cannot be written."""
+    try:
+        sys.stderr.write(text + "\n")
+        sys.stderr.flush()
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
+class _StdoutError(OSError):
+    """Standard output could not be written (a pipe whose reader is gone, a full device)."""
+
+
+class _Stdout:
+    """``sys.stdout`` while a command runs: a write or flush that fails raises :class:`_StdoutError`,
+    so that the error is known to be stdout's (and not a file's)."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text):
+        try:
+            return self._stream.write(text)
+        except OSError as e:
+            raise _StdoutError(e.errno, e.strerror) from None
+
+    def flush(self):
+        try:
+            return self._stream.flush()
+        except OSError as e:
+            raise _StdoutError(e.errno, e.strerror) from None
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+def _silence_stdout(stream) -> None:
+    """Send what is left of stdout to the null device, so that Python's flush at exit does not
+    fail a second time (the recipe of the Python documentation for a broken pipe)."""
+    try:
+        target = stream.fileno()
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, target)
+        os.close(fd)
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
+def _os_error_line(e: OSError) -> str:
+    """One line for an error of the environment: what could not be done, where, and why."""
+    what = printable(e.filename) if e.filename is not None else None
+    why = e.strerror or str(e)
+    hint = {errno.ENOSPC: " (the disk is full)", errno.EFBIG: " (the file size limit is reached)",
+            errno.EDQUOT: " (the disk quota is reached)"}.get(e.errno, "")
+    return f"freebody: error: {what}: {why}{hint}" if what else f"freebody: error: {why}{hint}"
+
+
+def _closed(fd: int) -> bool:
+    """Whether the file descriptor ``fd`` is closed (``freebody ... >&-``)."""
+    try:
+        os.fstat(fd)
+        return False
+    except OSError:
+        return True
 
 
 def main(argv: list[str] | None = None) -> int:
+    if _closed(1):  # a file freebody opens would become its stdout, and the workers' too
+        _stderr_line("freebody: error: standard output is closed; freebody prints its results there "
+                     "(redirect it to a file instead)")
+        return 2
     parser = build_parser()
     args = parser.parse_args(argv)
     if not args.command:
@@ -53,15 +129,34 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     warnings.showwarning = _warning_line
     module = _commands()[args.command]
+    stdout = sys.stdout
+    sys.stdout = _Stdout(stdout)
     try:
-        return int(module.run(args) or 0)
+        code = int(module.run(args) or 0)
+        sys.stdout.flush()  # a write error of buffered output (a full device) here, not at exit
+        return code
     except InputError as e:
         if args.debug:
             raise
-        sys.stderr.write(f"freebody: error: {e}\n")
+        _stderr_line(f"freebody: error: {printable(e)}")
         return 2
-    except KeyboardInterrupt:
-        sys.stderr.write("freebody: interrupted\n")
-        return 130
-    except BrokenPipeError:
-        return 0
+    except KeyboardInterrupt as e:  # Ctrl-C; SIGTERM, SIGHUP during a run (run/interrupts.py)
+        from ..run.interrupts import describe, exit_code
+
+        sys.stderr.write(f"freebody: {describe(e)}\n")
+        return exit_code(e)
+    except _StdoutError as e:  # a closed pipe (freebody ... | head -1), a full device
+        if args.debug:
+            raise
+        _silence_stdout(stdout)
+        why = ("the reading end of the pipe was closed" if e.errno == errno.EPIPE
+               else printable(e.strerror or e))
+        _stderr_line(f"freebody: error: standard output: cannot write: {why}; the output is incomplete")
+        return 2
+    except OSError as e:  # a full disk, a file or folder that cannot be written
+        if args.debug:
+            raise
+        _stderr_line(_os_error_line(e))
+        return 2
+    finally:
+        sys.stdout = stdout

@@ -14,8 +14,15 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..results.baseline import store_baseline
+    from pathlib import Path
 
+    from ..errors import InputError
+    from ..results.baseline import store_baseline
+    from .argtypes import writable_folder
+
+    if not args.to:
+        raise InputError("--to: empty; give the baseline file to write (e.g. --to baseline.json)")
+    writable_folder(Path(args.to).parent, f"--to {args.to}: its folder")  # can be written, before reading
     base = store_baseline(args.dir, args.to, force=args.force)
     engines = ", ".join(f"{e} {v or 'not installed'}" for e, v in (base.get("engines") or {}).items())
     print(f"baseline: {args.to} ({len(base['runs'])} runs; engines: {engines or 'none'})")

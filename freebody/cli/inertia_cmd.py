@@ -7,10 +7,8 @@ from __future__ import annotations
 
 ORDER = 40
 
-from pathlib import Path
-
 from ..errors import InputError
-from .argtypes import integer, positive_float as _positive
+from .argtypes import integer, nonnegative_int as _seed, quantity as _positive, writable_folder
 
 _resolution = integer(1, 1024)
 
@@ -40,26 +38,37 @@ def add_parser(sub) -> None:
     p.add_argument("--resolution", type=_resolution, metavar="N",
                    help=f"cells along the longest bounding-box side (default {DEFAULT_RESOLUTION}; "
                         f"with --compare the finest resolution, default {DEFAULT_COMPARE_MAX})")
-    p.add_argument("--seed", type=int, default=0, help="seed of the particle sample (default 0)")
+    p.add_argument("--seed", type=_seed, default=0, help="seed of the particle sample (default 0)")
     p.add_argument("--compare", action="store_true",
                    help="table and log-log plot of the particle and voxel errors against the exact "
                         "result as the resolution grows")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"where --compare writes inertia_<name>.png and .json (default {DEFAULT_OUT})")
+    p.add_argument("--force-large", action="store_true",
+                   help="start even when the grid's estimated memory exceeds the memory available")
 
 
 def run(args) -> int:
     from ..tools.inertia import compare, compare_table, load_target, report_approx, report_exact, write_compare
 
     target = load_target(args.target, args.size, density=args.density, mass=args.mass)
+    if args.compare and args.method != "exact":
+        raise InputError("--compare: compares every method with the exact result; drop --method")
+    if args.compare or args.method != "exact":
+        from ..run.budget import check_inertia, grid_cells
+
+        n = args.resolution or (DEFAULT_COMPARE_MAX if args.compare else DEFAULT_RESOLUTION)
+        # --compare ends with particles at the finest resolution: the larger of the two methods
+        check_inertia(grid_cells(target.solid.lo, target.solid.hi, n),
+                      "particles" if args.compare else args.method, target.kind == "mesh",
+                      force=args.force_large)
     if args.compare:
-        if args.method != "exact":
-            raise InputError("--compare: compares every method with the exact result; drop --method")
+        out_dir = writable_folder(args.out, "--out")  # before the work, so that none is lost
         rows = compare(target, args.resolution or DEFAULT_COMPARE_MAX, seed=args.seed)
         print(report_exact(target))
         print()
         print(compare_table(rows))
-        png, js = write_compare(target, rows, Path(args.out), SCHEMA_VERSION)
+        png, js = write_compare(target, rows, out_dir, SCHEMA_VERSION)
         print(f"\nplot: {png}\ntable: {js}")
         return 0
     if args.method == "exact":

@@ -23,12 +23,14 @@ def run(args) -> int:
     from ..errors import InputError
     from ..report.render import write_reports
     from ..results.document import load_results
+    from ..results.outdir import output_lock
 
     out_dir = Path(args.dir)
     if not out_dir.is_dir():
         raise InputError(f"{out_dir}: not a directory (expected a run directory holding results.json)")
-    doc = load_results(out_dir)
     problems = {pb.name: pb for pb in (load_case(p) for p in args.case)}
-    for path in write_reports(out_dir, doc, problems, html=not args.markdown_only):
-        print(f"report: {path}")
+    with output_lock(out_dir, option=""):  # not while a freebody run writes there
+        doc = load_results(out_dir)
+        for path in write_reports(out_dir, doc, problems, html=not args.markdown_only):
+            print(f"report: {path}")
     return 0

@@ -3,13 +3,13 @@ from __future__ import annotations
 
 ORDER = 20
 
-from pathlib import Path
-
-from ..input.casefile import bundled_case_paths, load_case
+from ..input.casefile import bundled_case_paths, check_run_lengths, load_case
 from ..run import Status, expand, select_engines
 from ..run.suite import run_specs
+from ..results.outdir import out_folder, output_lock
 from ..report.summary import summary_table
-from .argtypes import positive_float as _positive_float, positive_int as _positive_int
+from .argtypes import (positive_float as _positive_float, positive_int as _positive_int,
+                       save_interval as _save_interval, timeout_seconds as _timeout_seconds)
 
 DEFAULT_OUT = "reports/latest"
 
@@ -31,16 +31,23 @@ def add_parser(sub) -> None:
                    help="floating-point precision (repeatable); default: every one each engine offers "
                         "(mjx: float32 and float64, the others float64); engines offering none of "
                         "the chosen ones are left out, and a precision no selected engine offers is an error")
-    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory (default {DEFAULT_OUT})")
+    p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
+                   help=f"output directory (default {DEFAULT_OUT}); one freebody process writes it at a time")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.add_argument("--no-report", action="store_true",
                    help="do not write report.md and report.html (freebody report DIR writes them later)")
     p.add_argument("--jobs", type=_positive_int, metavar="N",
                    help="worker processes running runs in parallel, each run isolated (default: the "
-                        "number of cores); 1: one after another in this process")
-    p.add_argument("--timeout", type=_positive_float, metavar="S",
+                        "number of cores); 1: one worker process, one run after another")
+    p.add_argument("--no-isolation", action="store_true",
+                   help="for debugging: run every run in this process, one after another (no worker "
+                        "processes: an engine's crash ends freebody); not with --jobs N > 1, --timeout "
+                        "or --executor dask")
+    p.add_argument("--force-large", action="store_true",
+                   help="run even when the estimated memory exceeds the memory available")
+    p.add_argument("--timeout", type=_timeout_seconds, metavar="S",
                    help="per-run time limit in s: a run past it is killed and recorded failed")
-    p.add_argument("--save-every", type=_positive_int, default=1, metavar="K",
+    p.add_argument("--save-every", type=_save_interval, default=1, metavar="K",
                    help="keep every K-th sample in the trajectory files (metrics use every step)")
     p.add_argument("--executor", choices=("local", "dask"), default="local",
                    help="where runs execute: local worker processes (default) or a dask cluster")
@@ -51,18 +58,26 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     names = args.cases or list(bundled_case_paths())
     problems = [load_case(n) for n in names]
+    check_run_lengths(problems, args.dt, args.duration)  # at most MAX_STEPS_PER_RUN steps a run
     engines = select_engines(args.engine)
-    specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision)
-    out_dir = Path(args.out)
-    from ..run.suite import default_jobs
+    specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision,
+                   sources=[str(n) for n in names])
+    out_dir = out_folder(args.out)  # '' is bad input, not the current folder
+    from ..run.budget import check_run
+    from ..run.suite import check_options, default_jobs
 
-    doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet, save_every=args.save_every,
-                       jobs=args.jobs or default_jobs(), timeout=args.timeout, executor=args.executor,
-                       scheduler=args.scheduler)
-    print(summary_table(doc["runs"]), flush=True)
-    from ..report.render import finish_run  # fitted orders into results.json, then report.md/.html
+    jobs = args.jobs or (1 if args.no_isolation else default_jobs())
+    check_options(jobs, args.timeout, args.save_every, args.executor, args.scheduler,
+                  isolate=not args.no_isolation)  # before the output folder is touched
+    check_run(specs, jobs, force=args.force_large)
+    with output_lock(out_dir):  # one freebody process writes DIR at a time, reports included
+        doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet, save_every=args.save_every,
+                           jobs=jobs, timeout=args.timeout, executor=args.executor,
+                           scheduler=args.scheduler, isolate=not args.no_isolation)
+        print(summary_table(doc["runs"]), flush=True)
+        from ..report.render import finish_run  # fitted orders into results.json, then report.md/.html
 
-    doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report)
+        doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report)
     print(f"\nresults: {out_dir / 'results.json'}")
     for path in reports:
         print(f"report: {path}")

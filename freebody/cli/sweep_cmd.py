@@ -8,7 +8,7 @@ from pathlib import Path
 
 from .. import tolerances as tol
 from ..errors import InputError
-from .argtypes import nonnegative_int as _nonneg_int, positive_float as _positive_float
+from .argtypes import nonnegative_int as _nonneg_int, positive_float as _positive_float, writable_folder
 
 DEFAULT_OUT = "reports/sweep"
 
@@ -39,27 +39,43 @@ def add_parser(sub) -> None:
                    help="gravity (0, 0, -9.81) on half the bodies (mixed, default), all or none")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--force-large", action="store_true",
+                   help="start even when the estimated memory exceeds the memory available")
 
 
 def run(args) -> int:
     import math
 
+    from ..input.casefile import check_step_count
     from ..run import Status, select_engines
-    from ..tools.sweep import SweepSettings, sweep
+    from ..run.budget import check_sweep
+    from ..tools.sweep import SweepSettings, first_body_specs, sweep
 
     if args.count < 1:
         raise InputError(f"--count: must be >= 1, got {args.count}")
-    if not (math.isfinite(args.max_spin) and args.max_spin >= 0):
-        raise InputError(f"--max-spin: must be a finite number >= 0, got {args.max_spin}")
+    if not (math.isfinite(args.max_spin) and 0 <= args.max_spin <= tol.INPUT_MAGNITUDE_MAX):
+        raise InputError(f"--max-spin: must be a finite number from 0 to {tol.INPUT_MAGNITUDE_MAX:g}, "
+                         f"got {args.max_spin}")
     dts = tuple(args.dt or (0.01,))
     for d in dts:
         if args.duration < d * (1 - tol.DURATION_VS_DT_RTOL):
             raise InputError(f"--duration: {args.duration} s is shorter than dt = {d} s")
+        check_step_count(args.duration, d, lambda why: _fail("--duration", why))
+        if d < tol.INPUT_POSITIVE_MIN:
+            raise InputError(f"--dt: must be at least {tol.INPUT_POSITIVE_MIN:g} s (smaller steps are too "
+                             f"small to compute with in float64), got {d!r}")
     settings = SweepSettings(seed=args.seed, count=args.count, duration=args.duration, dts=dts,
                              max_spin=args.max_spin, gravity=args.gravity)
     engines = select_engines(args.engine)
-    out = sweep(settings, engines, args.integrator, Path(args.out), progress=not args.quiet,
+    check_sweep(args.count, first_body_specs(settings, engines, args.integrator, args.precision),
+                force=args.force_large)
+    out_dir = writable_folder(args.out, "--out")  # before the runs, so that none is lost
+    out = sweep(settings, engines, args.integrator, out_dir, progress=not args.quiet,
                 precisions=args.precision)
     print(out.report)
     print(f"\nresults: {Path(args.out) / 'sweep.json'}")
     return 1 if any(r["status"] == Status.FAILED for r in out.document["runs"]) else 0
+
+
+def _fail(option: str, why: str):
+    raise InputError(f"{option}: {why}")

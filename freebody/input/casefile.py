@@ -26,7 +26,9 @@ reason.  The format (units are normative)::
 """
 from __future__ import annotations
 
+import errno
 import math
+import os
 import tomllib
 import warnings
 from importlib import resources
@@ -35,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import tolerances as tol
-from ..errors import InputError
+from ..errors import InputError, abbreviated, printable
 from ..reference_impl import massprops
 from ..reference_impl.problem import Body, InitialState, Load, Problem
 
@@ -44,6 +46,9 @@ BODY_KEYS = {"mass", "inertia", "shape", "size", "density", "mesh"}
 INITIAL_KEYS = {"position", "orientation", "linear_velocity", "angular_velocity"}
 WORLD_KEYS = {"gravity"}
 LOAD_KEYS = {"force", "point", "body_point", "torque", "body_torque", "start", "steps", "end"}
+# A case's name names its runs in tables, progress lines and file names: at most this many
+# characters, printable (no control characters or terminal escape sequences).
+CASE_NAME_MAX_CHARS = 100
 
 
 class CaseWarning(UserWarning):
@@ -63,33 +68,88 @@ def bundled_case_paths() -> dict[str, Path]:
 
 
 def resolve_case(name_or_path: str) -> Path:
-    """A bundled case name, or a path to a TOML file."""
+    """A bundled case name, or a path to a TOML file.  A path that exists is returned whatever it
+    is (a folder, a FIFO, a device): reading it says what it is instead of "not found"."""
     p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists() or "/" in name_or_path:
-        if not p.is_file():
-            raise InputError(f"{name_or_path}: case file not found")
+    shown = printable(name_or_path)
+    exists = _exists(p, shown)
+    if p.suffix == ".toml" or exists or "/" in name_or_path:
+        if not exists:
+            raise InputError(f"{shown}: case file not found")
         return p
     cases = bundled_case_paths()
     if name_or_path not in cases:
-        raise InputError(f"{name_or_path}: unknown case; known cases: {', '.join(cases)} "
+        raise InputError(f"{shown}: unknown case; known cases: {', '.join(cases)} "
                          "(or give a path to a .toml file)")
     return cases[name_or_path]
+
+
+def _exists(p: Path, shown: str) -> bool:
+    """Whether anything is at ``p`` (following symbolic links); InputError for a path the system
+    cannot even look up (too long, a NUL character)."""
+    try:
+        os.stat(p)
+        return True
+    except (FileNotFoundError, NotADirectoryError):
+        return False
+    except ValueError:  # an embedded NUL character
+        raise InputError(f"{shown}: not a valid path (it contains a NUL character)") from None
+    except OSError as e:
+        if e.errno == errno.ELOOP:
+            return False
+        if e.errno == errno.ENAMETOOLONG:
+            raise InputError(f"{shown[:60]}...: path too long for the file system") from None
+        return True  # e.g. no permission to look: reading it says why
 
 
 def load_case(name_or_path: str | Path) -> Problem:
     """Parse and validate a case (bundled name or path) into a :class:`Problem`."""
     path = resolve_case(str(name_or_path))
-    try:
-        raw = path.read_bytes()
-    except OSError as e:
-        raise InputError(f"{path}: cannot read: {e.strerror}") from None
+    from ..results.io import read_regular_file
+
+    where = printable(path)
+    raw = read_regular_file(path, tol.CASE_FILE_MAX_BYTES, where)  # a regular file, size-limited
     try:
         data = tomllib.loads(raw.decode("utf-8"))
     except UnicodeDecodeError:
-        raise InputError(f"{path}: not UTF-8 text") from None
+        raise InputError(f"{where}: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{path}: invalid TOML: {e}") from None
+        raise InputError(f"{where}: invalid TOML: {e}") from None
+    except (ValueError, RecursionError) as e:  # e.g. an integer of more than 4300 digits; deep nesting
+        why = "nested too deeply" if isinstance(e, RecursionError) else str(e).split(";")[0]
+        raise InputError(f"{where}: invalid TOML: {why}") from None
     return parse_case(data, str(path))
+
+
+def check_step_count(duration: float, dt: float, fail) -> int:
+    """The number of steps, round(duration / dt) (at least 1), of a run; ``fail(reason)`` (which
+    raises) when it exceeds :data:`~freebody.tolerances.MAX_STEPS_PER_RUN` or cannot be computed."""
+    count = duration / dt  # inf when it overflows (dt = 1e-320, duration = 1e308)
+    if not count <= tol.MAX_STEPS_PER_RUN + 0.5:
+        shown = f"{count:.3g}" if math.isfinite(count) else "more than 1.8e308"
+        fail(f"{duration!r} s at dt = {dt!r} s is {shown} steps; a run has at most "
+             f"{tol.MAX_STEPS_PER_RUN:.0e} steps (MAX_STEPS_PER_RUN): use a larger dt or a shorter duration")
+    return max(1, int(round(count)))
+
+
+def check_run_lengths(problems, dts=None, duration=None) -> None:
+    """Check the time steps and durations given on the command line (``--dt``, ``--duration``;
+    None: the cases' own, checked when their files were read): InputError unless every run of
+    every problem has at most MAX_STEPS_PER_RUN steps and a dt of at least INPUT_POSITIVE_MIN."""
+    if not dts and duration is None:
+        return
+    option = "--duration" if duration is not None else "--dt"
+    for pb in problems:
+        def fail(why, pb=pb):
+            raise InputError(f"{option}: case {printable(pb.name)}: {why}")
+
+        for d in dts or pb.dts:
+            total = duration if duration is not None else pb.duration
+            if total is not None:
+                check_step_count(total, d, fail)
+            if d < tol.INPUT_POSITIVE_MIN:
+                raise InputError(f"--dt: must be at least {tol.INPUT_POSITIVE_MIN:g} s (smaller steps are too "
+                                 f"small to compute with in float64), got {d!r}")
 
 
 # --- validation helpers -----------------------------------------------------------------------
@@ -99,9 +159,7 @@ class _Ctx:
         self.source = source
 
     def fail(self, key: str, reason: str):
-        key = "".join(ch if ch.isprintable() else repr(ch)[1:-1] for ch in key)
-        reason = " ".join(reason.splitlines())
-        raise InputError(f"{self.source}: {key}: {reason}")
+        raise InputError(f"{printable(self.source)}: {printable(key)}: {printable(' '.join(reason.splitlines()))}")
 
     def keys(self, table, allowed: set[str], where: str, required: set[str] = frozenset()):
         if not isinstance(table, dict):
@@ -116,34 +174,49 @@ class _Ctx:
             if k not in table:
                 self.fail(f"{where}.{k}" if where else k, "missing required key")
 
-    def number(self, value, key: str, positive: bool = False, nonneg: bool = False) -> float:
+    def number(self, value, key: str, positive: bool = False, nonneg: bool = False,
+               tiny_ok: bool = False) -> float:
+        """A finite number of magnitude at most INPUT_MAGNITUDE_MAX; with ``positive`` > 0 and (unless
+        ``tiny_ok``) at least INPUT_POSITIVE_MIN (freebody.tolerances)."""
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            self.fail(key, f"must be a number, got {value!r}")
-        x = float(value)
-        if not math.isfinite(x):
+            self.fail(key, f"must be a number, got {abbreviated(value)}")
+        try:
+            x = float(value)
+        except OverflowError:  # an integer beyond float64's range
+            x = math.inf if value > 0 else -math.inf
+        if math.isnan(x) or (math.isinf(x) and isinstance(value, float)):
             self.fail(key, f"must be finite, got {value!r}")
+        if abs(x) > tol.INPUT_MAGNITUDE_MAX:
+            self.fail(key, f"must be at most {tol.INPUT_MAGNITUDE_MAX:g} in magnitude (squares of larger "
+                           f"numbers overflow float64), got {abbreviated(value)}")
         if positive and x <= 0:
             self.fail(key, f"must be > 0, got {value!r}")
+        if positive and not tiny_ok and x < tol.INPUT_POSITIVE_MIN:
+            self.fail(key, f"must be at least {tol.INPUT_POSITIVE_MIN:g} (smaller numbers are too small to "
+                           f"compute with in float64: their squares vanish), got {value!r}")
         if nonneg and x < 0:
             self.fail(key, f"must be >= 0, got {value!r}")
         return x
 
-    def integer(self, value, key: str, minimum: int = 1) -> int:
+    def integer(self, value, key: str, minimum: int = 1, maximum: int | None = None,
+                why_maximum: str = "") -> int:
         if isinstance(value, bool) or not isinstance(value, int):
-            self.fail(key, f"must be an integer, got {value!r}")
+            self.fail(key, f"must be an integer, got {abbreviated(value)}")
         if value < minimum:
-            self.fail(key, f"must be >= {minimum}, got {value!r}")
+            self.fail(key, f"must be >= {minimum}, got {abbreviated(value)}")
+        if maximum is not None and value > maximum:
+            self.fail(key, f"must be at most {maximum}{why_maximum}, got {abbreviated(value)}")
         return int(value)
 
-    def vector(self, value, key: str, n: int) -> np.ndarray:
+    def vector(self, value, key: str, n: int, **number_options) -> np.ndarray:
         if not isinstance(value, list) or len(value) != n:
-            self.fail(key, f"must be a list of {n} numbers, got {value!r}")
-        return np.array([self.number(v, f"{key}[{i}]") for i, v in enumerate(value)])
+            self.fail(key, f"must be a list of {n} numbers, got {abbreviated(value)}")
+        return np.array([self.number(v, f"{key}[{i}]", **number_options) for i, v in enumerate(value)])
 
     def matrix(self, value, key: str) -> np.ndarray:
         if (not isinstance(value, list) or len(value) != 3
                 or not all(isinstance(r, list) and len(r) == 3 for r in value)):
-            self.fail(key, f"must be a 3x3 list of lists of numbers, got {value!r}")
+            self.fail(key, f"must be a 3x3 list of lists of numbers, got {abbreviated(value)}")
         return np.array([[self.number(v, f"{key}[{i}][{j}]") for j, v in enumerate(r)]
                          for i, r in enumerate(value)])
 
@@ -156,16 +229,38 @@ def _closest(word: str, options: set[str]) -> str | None:
 
 
 def validate_inertia(I: np.ndarray, fail) -> None:
-    """Symmetric, positive definite, principal moments satisfying the triangle inequality."""
+    """Finite, symmetric, positive definite, principal moments from INPUT_POSITIVE_MIN to
+    INPUT_MAGNITUDE_MAX (freebody.tolerances) satisfying the triangle inequality."""
+    if not np.all(np.isfinite(I)):
+        fail("is not finite (it overflows float64)")
     scale = float(np.max(np.abs(I)))
     if scale == 0 or np.max(np.abs(I - I.T)) > tol.SYMMETRY_RTOL * scale:
         fail("not symmetric" if scale else "is zero")
-    ev = np.linalg.eigvalsh(0.5 * (I + I.T))
+    # eigenvalues of I / scale, then scaled back: LAPACK squares the entries of what it is given
+    ev = scale * np.linalg.eigvalsh(0.5 * (I + I.T) / scale)
     if ev[0] <= 0:
         fail(f"not positive definite (principal moments {_fmt(ev)})")
+    if ev[2] > tol.INPUT_MAGNITUDE_MAX or ev[0] < tol.INPUT_POSITIVE_MIN:
+        fail(f"principal moments {_fmt(ev)} kg m^2 are not all from {tol.INPUT_POSITIVE_MIN:g} to "
+             f"{tol.INPUT_MAGNITUDE_MAX:g}: too {'large' if ev[2] > tol.INPUT_MAGNITUDE_MAX else 'small'} "
+             "to compute with in float64")
     if ev[0] + ev[1] < ev[2] * (1 - tol.TRIANGLE_INEQUALITY_RTOL):
         fail(f"principal moments {_fmt(ev)} violate the triangle inequality I1 + I2 >= I3: "
              "no rigid body has them")
+
+
+def validate_mass(mass: float, fail, what: str = "mass") -> None:
+    """``fail(reason)`` unless a (computed) mass, kg, is from INPUT_POSITIVE_MIN to INPUT_MAGNITUDE_MAX."""
+    if not (tol.INPUT_POSITIVE_MIN <= mass <= tol.INPUT_MAGNITUDE_MAX):
+        fail(f"{what} {mass:.6g} kg is not from {tol.INPUT_POSITIVE_MIN:g} to {tol.INPUT_MAGNITUDE_MAX:g}: "
+             "too large or too small to compute with in float64")
+
+
+def validate_volume(volume: float, fail) -> None:
+    """``fail(reason)`` unless a computed volume, m^3, is from INPUT_POSITIVE_MIN to INPUT_MAGNITUDE_MAX."""
+    if not (tol.INPUT_POSITIVE_MIN <= volume <= tol.INPUT_MAGNITUDE_MAX):
+        fail(f"its volume {volume:.6g} m^3 is not from {tol.INPUT_POSITIVE_MIN:g} to "
+             f"{tol.INPUT_MAGNITUDE_MAX:g}: too large or too small to compute with in float64")
 
 
 def _fmt(a) -> str:
@@ -181,6 +276,12 @@ def parse_case(data: dict, source: str = "<case>") -> Problem:
     name = data["name"]
     if not isinstance(name, str) or not name.strip():
         c.fail("name", "must be a non-empty string")
+    if len(name) > CASE_NAME_MAX_CHARS:
+        c.fail("name", f"is {len(name)} characters long; at most {CASE_NAME_MAX_CHARS} "
+                       f"(CASE_NAME_MAX_CHARS): {abbreviated(name, 40)}")
+    if not name.isprintable():
+        c.fail("name", f"must be printable text, without control characters or terminal escape "
+                       f"sequences, got {abbreviated(name)}")
     if not isinstance(data["description"], str):
         c.fail("description", "must be a string")
 
@@ -188,18 +289,24 @@ def parse_case(data: dict, source: str = "<case>") -> Problem:
     dts_list = dts_raw if isinstance(dts_raw, list) else [dts_raw]
     if not dts_list:
         c.fail("dt", "must list at least one time step")
-    dts = tuple(c.number(d, "dt", positive=True) for d in dts_list)
+    dts = tuple(c.number(d, "dt", positive=True, tiny_ok=True) for d in dts_list)
 
     if ("duration" in data) == ("duration_steps" in data):
         c.fail("duration", "give exactly one of duration (s) and duration_steps")
     duration = duration_steps = None
     if "duration" in data:
-        duration = c.number(data["duration"], "duration", positive=True)
+        duration = c.number(data["duration"], "duration", positive=True, tiny_ok=True)
         for d in dts:
             if duration < d * (1 - tol.DURATION_VS_DT_RTOL):
                 c.fail("duration", f"{duration} s is shorter than dt = {d} s")
+            check_step_count(duration, d, lambda why: c.fail("duration", why))
     else:
-        duration_steps = c.integer(data["duration_steps"], "duration_steps")
+        duration_steps = c.integer(data["duration_steps"], "duration_steps",
+                                   maximum=tol.MAX_STEPS_PER_RUN, why_maximum=" (MAX_STEPS_PER_RUN)")
+    for d in dts:  # after the step count, which says more about a tiny dt
+        if d < tol.INPUT_POSITIVE_MIN:
+            c.fail("dt", f"must be at least {tol.INPUT_POSITIVE_MIN:g} s (smaller steps are too small to "
+                         f"compute with in float64), got {d!r}")
 
     body = _parse_body(c, data["body"])
     initial = _parse_initial(c, data["initial"])
@@ -234,21 +341,27 @@ def _parse_body(c: _Ctx, b) -> Body:
         I = c.matrix(b["inertia"], "body.inertia")
     else:
         shape = b["shape"]
+        if not isinstance(shape, str):
+            c.fail("body.shape", f"must be a shape name (a string), got {abbreviated(shape)}; known: "
+                                 f"{', '.join(massprops.SHAPES)}")
         if shape not in massprops.SHAPES:
-            c.fail("body.shape", f"unknown shape {shape!r}; known: {', '.join(massprops.SHAPES)}")
+            c.fail("body.shape", f"unknown shape {abbreviated(shape)}; known: {', '.join(massprops.SHAPES)}")
         if "size" not in b:
             c.fail("body.size", "missing required key (with shape)")
-        size = c.vector(b["size"], "body.size", massprops.SHAPES[shape])
-        if np.any(size <= 0):
-            c.fail("body.size", f"must be > 0, got {b['size']!r}")
+        size = c.vector(b["size"], "body.size", massprops.SHAPES[shape], positive=True)
         if ("mass" in b) == ("density" in b):
             c.fail("body.mass", "give exactly one of mass and density (with shape)")
         if "mass" in b:
             mass = c.number(b["mass"], "body.mass", positive=True)
         else:
-            mass = c.number(b["density"], "body.density", positive=True) * massprops.volume(shape, size)
+            density = c.number(b["density"], "body.density", positive=True)
+            volume = massprops.volume(shape, size)
+            validate_volume(volume, lambda why: c.fail("body.size", f"a {shape} of this size: {why}"))
+            mass = density * volume
+            validate_mass(mass, lambda why: c.fail("body.density", f"with this size, the {why}"))
         I = massprops.inertia(shape, size, mass)
-    validate_inertia(I, lambda why: c.fail("body.inertia", why))
+    validate_inertia(I, lambda why: c.fail("body.inertia" if has_inertia else "body.size",
+                                           why if has_inertia else f"the {shape}'s inertia: {why}"))
     return Body(mass=mass, I_body=0.5 * (I + I.T))
 
 
@@ -276,22 +389,38 @@ def _parse_mesh_body(c: _Ctx, b) -> Body:
         _, props = body_from_mesh(path, **{key: value})
     except MeshError as e:
         c.fail("body.mesh", f"{path}: {e}")
+    validate_volume(props.volume, lambda why: c.fail("body.mesh", f"{path}: {why}"))
+    validate_mass(props.mass, lambda why: c.fail(f"body.{key}", f"with this mesh, the {why}"))
     validate_inertia(props.inertia, lambda why: c.fail("body.mesh", f"{path}: inertia {why}"))
     return Body(mass=props.mass, I_body=props.inertia)
 
 
 def _parse_initial(c: _Ctx, t) -> InitialState:
     c.keys(t, INITIAL_KEYS, "initial", required=INITIAL_KEYS)
-    q = c.vector(t["orientation"], "initial.orientation", 4)
+    q = _orientation(c, t["orientation"])
     n = float(np.linalg.norm(q))
-    if n == 0:
-        c.fail("initial.orientation", "is the zero quaternion (w, x, y, z); identity is [1, 0, 0, 0]")
     if abs(n - 1) > tol.UNIT_QUATERNION_RTOL:
         warnings.warn(f"{c.source}: initial.orientation: |q| = {n:.6g}, normalised to a unit "
                       "quaternion", CaseWarning, stacklevel=2)
     return InitialState(position=c.vector(t["position"], "initial.position", 3), quaternion_wxyz=q / n,
                         linear_velocity=c.vector(t["linear_velocity"], "initial.linear_velocity", 3),
                         angular_velocity=c.vector(t["angular_velocity"], "initial.angular_velocity", 3))
+
+
+def _orientation(c: _Ctx, value) -> np.ndarray:
+    """initial.orientation (w, x, y, z): not zero, and with a norm that float64 can compute."""
+    key = "initial.orientation"
+    if not isinstance(value, list) or len(value) != 4:
+        c.fail(key, f"must be a list of 4 numbers, got {abbreviated(value)}")
+    q = np.array([c.number(v, f"{key}[{i}]") for i, v in enumerate(value)])
+    largest = float(np.max(np.abs(q)))
+    if largest == 0:
+        c.fail(key, "is the zero quaternion (w, x, y, z); identity is [1, 0, 0, 0]")
+    n = float(np.linalg.norm(q))
+    if largest < tol.INPUT_POSITIVE_MIN or not (n > 0 and math.isfinite(n)):  # squares vanish or overflow
+        c.fail(key, f"{abbreviated(value)} is too small to normalise (its squares vanish in float64: "
+                    f"denormal); give a unit quaternion such as [1, 0, 0, 0]")
+    return q
 
 
 def _parse_load(c: _Ctx, ld, i: int) -> Load:
@@ -311,7 +440,8 @@ def _parse_load(c: _Ctx, ld, i: int) -> Load:
             kw[k] = c.vector(ld[k], f"{where}.{k}", 3)
     start = c.number(ld.get("start", 0.0), f"{where}.start", nonneg=True)
     if "steps" in ld:
-        kw["steps"] = c.integer(ld["steps"], f"{where}.steps")
+        kw["steps"] = c.integer(ld["steps"], f"{where}.steps", maximum=tol.MAX_STEPS_PER_RUN,
+                                why_maximum=" (MAX_STEPS_PER_RUN; leave steps out to act to the end)")
     if "end" in ld:
         end = c.number(ld["end"], f"{where}.end")
         if end <= start:

@@ -23,6 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from ..reference_impl.mesh import MeshError, TriangleMesh, mass_properties, validate, weld
+from ..results.io import FileRefused, read_regular_file
+from ..tolerances import MESH_COORDINATE_MAX, MESH_FILE_MAX_BYTES
 
 FORMATS = (".obj", ".stl")
 
@@ -30,16 +32,18 @@ FORMATS = (".obj", ".stl")
 def read_mesh(path: str | Path) -> TriangleMesh:
     """Read an OBJ or STL file (by its suffix, case-insensitive) into a welded TriangleMesh.
 
-    Raises :class:`MeshError` for an unreadable file, an unknown suffix or a malformed file.
+    Raises :class:`MeshError` for an unreadable file, an unknown suffix or a malformed file, and
+    for anything but a regular file of at most ``MESH_FILE_MAX_BYTES`` (freebody.tolerances): a
+    FIFO or /dev/zero is refused, never read.
     """
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix not in FORMATS:
         raise MeshError(f"unknown mesh format {p.suffix!r}; use one of {', '.join(FORMATS)}")
     try:
-        data = p.read_bytes()
-    except OSError as e:
-        raise MeshError(f"cannot read: {e.strerror}") from None
+        data = read_regular_file(p, MESH_FILE_MAX_BYTES, str(p))
+    except FileRefused as e:  # missing, unreadable, a FIFO or device, too large
+        raise MeshError(e.reason) from None
     v, t = parse_obj(data) if suffix == ".obj" else parse_stl(data)
     if len(t) == 0:
         raise MeshError("has no triangles")
@@ -69,6 +73,10 @@ def _floats(tokens: list[str], lineno: int, what: str) -> list[float]:
         raise MeshError(f"line {lineno}: {what} needs three numbers, got {' '.join(tokens)!r}")
     if not all(np.isfinite(xyz)):
         raise MeshError(f"line {lineno}: {what} has a non-finite coordinate")
+    if max(abs(x) for x in xyz) > MESH_COORDINATE_MAX:
+        raise MeshError(f"line {lineno}: {what} has a coordinate of magnitude {max(abs(x) for x in xyz):g} m; "
+                        f"at most {MESH_COORDINATE_MAX:g} m (the mass-property integrals multiply five "
+                        f"coordinates: larger ones overflow float64)")
     return xyz
 
 

@@ -333,3 +333,112 @@ def engine_versions(doc: dict) -> list[tuple[str, str, int]]:
         versions.setdefault(r["engine"], r.get("engine_version"))
     return [(e, str(v) if v else "not installed", sum(r["engine"] == e for r in runs))
             for e, v in versions.items()]
+
+
+# --- error series of the per-case figures ---------------------------------------------------------
+
+# The trajectory file's arrays the figures need (its orthonormality error is not drawn).
+_DRAWN_FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
+
+
+@dataclass(frozen=True)
+class RunSeries:
+    """One run's curves in a per-case figure, from its trajectory file.
+
+    t : (n,) s.  keep : (n,) bool, False after the run's divergence.
+    orientation_error : (n,) rad, geodesic angle to the truth.
+    energy_error, angular_momentum_error : (n,), as :func:`freebody.run.metrics.series` defines
+        them (relative to the truth's max KE and max |L|, absolute where that scale is 0), or None
+        without the case's mass and inertia.
+    angular_velocity : (n, 3) rad/s, world.
+    """
+
+    run: dict
+    t: np.ndarray
+    keep: np.ndarray
+    orientation_error: np.ndarray
+    energy_error: np.ndarray | None
+    angular_momentum_error: np.ndarray | None
+    angular_velocity: np.ndarray
+
+
+@dataclass(frozen=True)
+class TruthSeries:
+    """A truth as the figures use it: t (N,) s, angular_velocity (N, 3) rad/s world, quaternion
+    (N, 4), and (with the case's physics, else None) L (N, 3) kg m^2/s world, KE and E (N,) J."""
+
+    t: np.ndarray
+    quaternion_wxyz: np.ndarray
+    angular_velocity: np.ndarray
+    L: np.ndarray | None
+    ke: np.ndarray | None
+    E: np.ndarray | None
+
+
+def _momentum_energy(physics: CasePhysics, q, w, v, x):
+    """(L (N, 3), KE (N,), E (N,)) of states, with L computed once (kinetic_energy's formula)."""
+    M, I_b = physics.body.mass, physics.body.I_body
+    L = angular_momentum(I_b, q, w)
+    ke = 0.5 * M * np.sum(v * v, axis=-1) + 0.5 * np.sum(w * L, axis=-1)
+    return L, ke, ke + potential_energy(M, physics.gravity, x)
+
+
+class NoTruth(Exception):
+    """A trajectory file without a truth (or without samples): the run cannot be drawn."""
+
+
+class SeriesReader:
+    """Reads runs' trajectory files for the per-case figures: only the drawn arrays, and each
+    distinct truth once.  The runs of a case at one dt carry the same truth in each of their files;
+    truths whose arrays have the same CRC-32 and size in the files' zip directories are read and
+    reduced (L, KE, E) once.
+
+    physics : the case's CasePhysics, or None (then only the orientation error and the angular
+    velocity are available)."""
+
+    def __init__(self, physics: CasePhysics | None):
+        self.physics = physics
+        self._truths: dict[tuple, TruthSeries] = {}
+
+    def _truth(self, z) -> TruthSeries | None:
+        names = ["truth_" + f for f in _DRAWN_FIELDS]
+        try:
+            key = tuple((i.CRC, i.file_size) for i in (z.zip.getinfo(n + ".npy") for n in names))
+        except KeyError:
+            return None
+        hit = self._truths.get(key)
+        if hit is None:
+            t, x, q, v, w = (np.asarray(z[n]) for n in names)
+            L = ke = E = None
+            if self.physics is not None:
+                with np.errstate(all="ignore"):
+                    L, ke, E = _momentum_energy(self.physics, q, w, v, x)
+            hit = self._truths[key] = TruthSeries(t, q, w, L, ke, E)
+        return hit
+
+    def read(self, path: Path, run: dict) -> tuple[RunSeries, TruthSeries]:
+        """(the run's series, its truth) from its trajectory file.  OSError, KeyError or
+        ValueError when the file is unreadable; NoTruth when it has no truth or no samples."""
+        with np.load(path) as z:
+            truth = self._truth(z)
+            if truth is None:
+                raise NoTruth(path)
+            t, x, q, v, w = (np.asarray(z[f]) for f in _DRAWN_FIELDS)
+        n = min(len(t), len(truth.t))
+        if n == 0:
+            raise NoTruth(path)
+        t, x, q, v, w = t[:n], x[:n], q[:n], v[:n], w[:n]
+        t_end = finite_or_none(run.get("diverged_at_s"))
+        keep = np.ones(n, bool) if t_end is None else (t <= t_end)
+        energy = momentum = None
+        with np.errstate(all="ignore"):
+            ori = geodesic_angle(truth.quaternion_wxyz[:n], q)
+            if self.physics is not None:
+                L, _, E = _momentum_energy(self.physics, q, w, v, x)
+                L_scale = float(np.max(np.linalg.norm(truth.L[:n], axis=-1)))
+                dL = np.linalg.norm(L - truth.L[:n], axis=-1)
+                momentum = dL / L_scale if L_scale > 0 else dL
+                E_scale = float(np.max(truth.ke[:n]))
+                dE = np.abs(E - truth.E[:n])
+                energy = dE / E_scale if E_scale > 0 else dE
+        return RunSeries(run, t, keep, ori, energy, momentum, w), truth

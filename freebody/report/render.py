@@ -61,15 +61,7 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
         from . import plots as plots
         from .html import render_html
 
-        figures: dict = {"heatmap": plots.heatmap(runs), "convergence": plots.convergence(runs, conv),
-                         "speed": plots.speed_accuracy(runs)}
-        notes: dict = {}
-        all_labels = rd.labels(runs)
-        for case, case_runs in rd.by_case(runs).items():
-            for dt in rd.dts(case_runs):
-                at_dt = [r for r in case_runs if float(r["dt"]) == dt]
-                figures[(case, dt)], n = plots.case_dt(case, dt, at_dt, physics[case], out_dir, all_labels)
-                notes.setdefault(case, []).extend(n)
+        figures, notes = plots.render_figures(runs, conv, physics, out_dir)
         html_path = out_dir / "report.html"
         write_text_atomic(html_path, render_html(doc, conv, physics, figures, notes, out_dir, pairs=pairs))
         written.append(html_path)

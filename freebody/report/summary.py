@@ -1,6 +1,7 @@
 """The plain-text summary table printed by ``freebody run``."""
 from __future__ import annotations
 
+from ..errors import printable
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX,
                            POSITION_ERROR_MAX)
 from ..run.records import STATUSES, Status
@@ -37,7 +38,7 @@ def summary_table(runs: list[dict]) -> str:
             repro += f"; vs {vs['engine']}/{vs['integrator']} " + (fmt(diff, ".1e") if diff is not None
                                                                     else vs.get("message", "-"))
         status = r["status"]
-        rows.append((r["case"], run_label(r), f"{r['dt']:g}", status,
+        rows.append((printable(r["case"]), printable(run_label(r)), f"{r['dt']:g}", status,
                      fmt(m.get(ORIENTATION_ERROR_MAX)), fmt(m.get(ANGULAR_MOMENTUM_ERROR_MAX_REL)),
                      fmt(m.get(ENERGY_ERROR_MAX_REL)), fmt(m.get(POSITION_ERROR_MAX)), repro))
     widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
@@ -45,7 +46,7 @@ def summary_table(runs: list[dict]) -> str:
     lines.append("  ".join("-" * w for w in widths))
     for row in rows:
         lines.append("  ".join(f"{c:<{w}}" for c, w in zip(row, widths)).rstrip())
-    notes = [f"  {r['case']} {run_label(r)} dt={r['dt']:g}: {r['status']}: {r['message']}"
+    notes = [printable(f"  {r['case']} {run_label(r)} dt={r['dt']:g}: {r['status']}: {r['message']}")
              for r in runs if r["status"] != Status.OK and r.get("message")]
     if notes:
         lines.append("")

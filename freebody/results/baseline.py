@@ -6,6 +6,8 @@ metrics, the final states, the statuses, the fitted orders and the cases.
 """
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 from ..errors import InputError
@@ -29,6 +31,7 @@ def store_baseline(source: str | Path, to: str | Path, force: bool = False) -> d
     to = Path(to)
     if to.is_dir():
         raise InputError(f"--to {to}: is a directory; give a file name such as {to / 'baseline.json'}")
+    _check_regular(to)
     if to.exists() and not force:
         raise InputError(f"--to {to}: exists; pass --force to replace it")
     doc = load_side(source, "results")
@@ -38,3 +41,20 @@ def store_baseline(source: str | Path, to: str | Path, force: bool = False) -> d
     base = make_baseline(doc, str(source))
     write_json_atomic(to, base)
     return base
+
+
+def _check_regular(to: Path) -> None:
+    """InputError if ``to`` exists and is not a regular file (a device such as /dev/null, a FIFO,
+    a socket; through a symbolic link too): ``--force`` replaces files, never those."""
+    try:
+        mode = os.stat(to).st_mode
+    except FileNotFoundError:
+        return
+    except OSError as e:
+        raise InputError(f"--to {to}: cannot check it: {e.strerror or e}") from None
+    if not stat.S_ISREG(mode):
+        kind = ("a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
+                else "a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                else "a special file")
+        raise InputError(f"--to {to}: is {kind}, not a regular file; freebody writes baselines to "
+                         f"regular files only (--force does not replace it)")

@@ -20,7 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .. import tolerances as tol
-from ..errors import InputError
+from .io import read_regular_file
+from ..errors import InputError, printable
 from ..numbers import finite_or_none
 from .document import load_results
 from ..report.summary import run_label
@@ -165,13 +166,20 @@ def resolve_tolerances(path: str | Path | None = None, rtol: float | None = None
     if path is not None:
         p = Path(path)
         try:
-            data = tomllib.loads(p.read_text())
+            data = tomllib.loads(read_regular_file(p, tol.TOLERANCES_FILE_MAX_BYTES,
+                                                   f"--tolerances {p}").decode("utf-8"))
         except FileNotFoundError:
             raise InputError(f"--tolerances {p}: no such file") from None
         except OSError as e:
             raise InputError(f"--tolerances {p}: cannot read: {e.strerror or e}") from None
+        except UnicodeDecodeError as e:  # a binary file, UTF-16, Latin-1
+            raise InputError(f"--tolerances {p}: not UTF-8 text (byte {e.start}); a tolerances file is "
+                             f"TOML (see docs/ci-gate.md)") from None
         except tomllib.TOMLDecodeError as e:
-            raise InputError(f"--tolerances {p}: invalid TOML: {e}") from None
+            raise InputError(f"--tolerances {p}: invalid TOML: {printable(e)}") from None
+        except (ValueError, RecursionError) as e:  # an integer of more than 4300 digits; deep nesting
+            why = "nested too deeply" if isinstance(e, RecursionError) else str(e).split(";")[0]
+            raise InputError(f"--tolerances {p}: invalid TOML: {why}") from None
         for k, v in data.items():
             if k in ("rtol", "atol"):
                 top[k] = _tol_value(v, f"--tolerances {p}: {k}")
@@ -279,6 +287,7 @@ def _cell(x) -> str:
 
 
 def _columns(header: tuple, rows: list[tuple]) -> list[str]:
+    rows = [tuple(printable(c) for c in row) for row in rows]  # names from files: no terminal escapes
     widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
     lines = ["  ".join(f"{h:<{w}}" for h, w in zip(header, widths)).rstrip(),
              "  ".join("-" * w for w in widths).rstrip()]
@@ -292,7 +301,7 @@ ORDER = {"missing": 0, "regressed": 1, "improved": 2, "changed": 3, "new": 4, "s
 def format_comparison(cmp: Comparison, show_all: bool = False) -> str:
     """The text ``freebody compare`` prints: engine versions side by side, the changes (regressions
     first), and a one-line verdict.  Numbers in %.3e."""
-    out = [f"baseline: {cmp.sources[0]}", f"current:  {cmp.sources[1]}", ""]
+    out = [f"baseline: {printable(cmp.sources[0])}", f"current:  {printable(cmp.sources[1])}", ""]
     out += _columns(("engine", "baseline", "current", ""),
                     [(e, b, c, "" if b == c else "<- changed") for e, b, c in cmp.versions])
     out.append("")

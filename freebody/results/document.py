@@ -9,10 +9,14 @@ Written with sorted keys; non-finite numbers become null (the run's status says 
 ignore keys they do not know.  A trajectory file (npz) holds the run's arrays and its truth's:
 ``t (N,)``, ``position (N, 3)``, ``quaternion_wxyz (N, 4)``, ``linear_velocity (N, 3)``,
 ``angular_velocity (N, 3)`` [, ``orthonormality_error (N,)``], and the same with a ``truth_`` prefix.
+A run's ``trajectory`` is its file's path relative to the folder of results.json:
+``trajectories/<n>/<name>.npz``, one folder ``<n>`` per invocation (see :mod:`.outdir`), or
+``trajectories/<name>.npz`` in folders written by earlier releases; readers simply join the two.
 """
 from __future__ import annotations
 
-import math
+import hashlib
+import json
 import platform
 from datetime import datetime, timezone
 from pathlib import Path
@@ -20,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..errors import InputError
+from ..errors import InputError, abbreviated, printable
+from ..numbers import finite_or_none
 from ..reference_impl.conventions import Trajectory
 from .io import read_json, write_npz_atomic
 
@@ -52,9 +57,24 @@ def results_document(runs: list[dict], engines: dict[str, str | None], incomplet
     return doc
 
 
+READABLE_NAME_CHARS = 120  # of a trajectory file name's readable part (the whole name stays < 160)
+
+
 def trajectory_filename(run: dict) -> str:
-    name = f"{run['case']}__{run['engine']}__{run['integrator']}__{run.get('precision', 'float64')}__dt{run['dt']:g}"
-    return "trajectories/" + "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in name) + ".npz"
+    """The file name (no folder) of a run's trajectory file: a readable part (case, engine,
+    integrator, precision, dt; ASCII letters, digits and ``._-``, the rest ``_``, at most
+    READABLE_NAME_CHARS) and a hash of the run's exact identity (case, engine, integrator,
+    precision, ``repr(dt)``, steps), so that two runs never share a file (cases "x y" and "x_y",
+    dt 0.01 and 0.0100000001) and a long case name still makes a valid file name."""
+    precision = run.get("precision", "float64")
+    identity = json.dumps([run["case"], run["engine"], run["integrator"], precision,
+                           repr(float(run["dt"])), run.get("steps")])
+    digest = hashlib.sha256(identity.encode("utf-8")).hexdigest()[:12]
+    readable = f"{run['case']}__{run['engine']}__{run['integrator']}__{precision}__dt{run['dt']:g}"
+    safe = "".join(ch if ch.isascii() and (ch.isalnum() or ch in "._-") else "_" for ch in readable)
+    if safe.startswith("."):
+        safe = "_" + safe[1:]  # no hidden files
+    return f"{safe[:READABLE_NAME_CHARS]}__{digest}.npz"
 
 
 def thinned_for_saving(tr: Trajectory, truth: Trajectory | None,
@@ -110,28 +130,87 @@ def load_results(source, role: str = "") -> dict:
     p = Path(source)
     if p.is_dir():
         if not (p / "results.json").is_file():
-            raise InputError(f"{prefix}{p}: no results.json in this directory (run freebody run --out {p})")
+            raise InputError(f"{prefix}{printable(p)}: no results.json in this directory (run freebody run "
+                             f"--out {printable(p)})")
         p = p / "results.json"
-    return check_results(read_json(p, f"{prefix}{p}"), f"{prefix}{p}")
+    where = f"{prefix}{printable(p)}"
+    try:
+        doc = read_json(p, where)
+    except UnicodeDecodeError as e:  # e.g. UTF-16 or Latin-1
+        raise InputError(f"{where}: not UTF-8 text (byte {e.start}); freebody writes results as "
+                         f"UTF-8 JSON") from None
+    except RecursionError:
+        raise InputError(f"{where}: not a results file: its JSON is nested too deeply") from None
+    return check_results(doc, where)
+
+
+# The types of a run's fields (keys of RunResult.to_json) that readers use: a field that is present
+# must have one of them (None: JSON null).  Unknown keys are ignored.
+_NUMBER = (int, float)
+_RUN_FIELD_TYPES = {
+    "case": (str,), "engine": (str,), "integrator": (str,), "status": (str,),
+    "precision": (str, type(None)), "steps": (int, type(None)), "message": (str, type(None)),
+    "truth": (str, type(None)), "trajectory": (str, type(None)), "engine_version": (str, type(None)),
+    "metrics": (dict, type(None)), "final_state": (dict, type(None)), "engine_settings": (dict, type(None)),
+    "matches_reference": (dict, type(None)), "vs_engine": (dict, type(None)), "engine_output": (list, type(None)),
+    "wall_time_s": (*_NUMBER, type(None)), "diverged_at_s": (*_NUMBER, type(None)),
+    "compile_time_s": (*_NUMBER, type(None)),
+}
+_JSON_TYPE = {str: "a string", int: "an integer", float: "a number", dict: "an object", list: "an array",
+              type(None): "null"}
+
+
+def _json_type(value) -> str:
+    return "a boolean" if isinstance(value, bool) else _JSON_TYPE.get(type(value), type(value).__name__)
 
 
 def check_results(doc, where: str) -> dict:
-    """Validate a loaded results document's schema version and runs; InputError naming ``where``."""
+    """Validate a loaded results document: its schema version, ``engines``, ``incomplete`` and every
+    run's identity, status and the types of the fields readers use (:data:`_RUN_FIELD_TYPES`);
+    InputError naming ``where`` and the field."""
+    from ..run.records import STATUSES
+
     if not isinstance(doc, dict) or "schema_version" not in doc:
         raise InputError(f"{where}: schema_version: missing; not a freebody results or baseline file")
     v = doc["schema_version"]
     if v != SCHEMA_VERSION:
-        raise InputError(f"{where}: schema_version: is {v!r}, this freebody reads {SCHEMA_VERSION}; {MIGRATE}")
+        raise InputError(f"{where}: schema_version: is {abbreviated(v)}, this freebody reads {SCHEMA_VERSION}; "
+                         f"{MIGRATE}")
+    engines = doc.get("engines")
+    if engines is not None:
+        if not isinstance(engines, dict):
+            raise InputError(f"{where}: engines: must be an object {{engine: version or null}}, got "
+                             f"{_json_type(engines)}")
+        for e, ver in engines.items():
+            if ver is not None and not isinstance(ver, str):
+                raise InputError(f"{where}: engines.{printable(e)}: must be a version string or null, got "
+                                 f"{_json_type(ver)}")
+    if not isinstance(doc.get("incomplete", False), bool):
+        raise InputError(f"{where}: incomplete: must be true or false, got {_json_type(doc['incomplete'])}")
     runs = doc.get("runs")
     if not isinstance(runs, list):
         raise InputError(f"{where}: runs: missing or not a list")
     for i, r in enumerate(runs):
-        if not isinstance(r, dict):
-            raise InputError(f"{where}: runs[{i}]: not an object")
-        for k in REQUIRED_RUN_KEYS:
-            if k not in r:
-                raise InputError(f"{where}: runs[{i}].{k}: missing")
-        dt = r["dt"]
-        if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt) or dt <= 0:
-            raise InputError(f"{where}: runs[{i}].dt: not a positive number: {dt!r}")
+        _check_run(r, f"{where}: runs[{i}]", STATUSES)
     return doc
+
+
+def _check_run(r, where: str, statuses) -> None:
+    if not isinstance(r, dict):
+        raise InputError(f"{where}: not an object")
+    for k in REQUIRED_RUN_KEYS:
+        if k not in r:
+            raise InputError(f"{where}.{k}: missing")
+    for k, types in _RUN_FIELD_TYPES.items():
+        if k in r and (isinstance(r[k], bool) or not isinstance(r[k], types)):
+            kinds = " or ".join(_JSON_TYPE[t] for t in dict.fromkeys(types))
+            raise InputError(f"{where}.{k}: must be {kinds}, got {_json_type(r[k])}: {abbreviated(r[k], 40)}")
+    if r["status"] not in statuses:
+        raise InputError(f"{where}.status: unknown status {abbreviated(r['status'], 40)}; known: "
+                         f"{', '.join(statuses)}")
+    dt = r["dt"]
+    if finite_or_none(dt) is None or dt <= 0:
+        raise InputError(f"{where}.dt: not a positive number: {abbreviated(dt, 40)}")
+    for m, x in (r.get("metrics") or {}).items():
+        if x is not None and (isinstance(x, bool) or not isinstance(x, _NUMBER)):
+            raise InputError(f"{where}.metrics.{printable(m)}: must be a number or null, got {_json_type(x)}")

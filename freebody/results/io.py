@@ -18,10 +18,12 @@ import json
 import os
 import random
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
 
+from .. import tolerances as tol
 from ..errors import InputError
 from ..numbers import finite_or_none
 
@@ -45,14 +47,77 @@ def json_safe(obj):
     return obj
 
 
-def read_json(path: Path, where: str):
-    """The parsed JSON of a file; InputError starting with ``where`` if it cannot be read or parsed."""
+class FileRefused(InputError):
+    """An input file that is missing, unreadable, not a regular file or too large: the message is
+    ``"<what>: <reason>"``; ``reason`` alone is kept for callers that name the file themselves."""
+
+    def __init__(self, what: str, reason: str):
+        super().__init__(f"{what}: {reason}")
+        self.reason = reason
+
+
+def _file_kind(mode: int) -> str:
+    for test, kind in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return kind
+    return "a special file"
+
+
+def _mib(n: int) -> str:
+    return f"{n / 2 ** 20:.4g} MiB"
+
+
+def read_regular_file(path: str | Path, limit: int, what: str) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` bytes; else :class:`FileRefused`
+    (an InputError, one line ``"<what>: <reason>"``).
+
+    Every input file goes through here (case files, meshes, results documents and baselines,
+    ``--tolerances``): a FIFO would block forever and /dev/zero or /dev/urandom would be read until
+    memory runs out, so only regular files are read (checked with stat before opening, so a device
+    is never opened, and with fstat of the opened file, which is opened non-blocking), and only up
+    to ``limit`` bytes (the limits are in :mod:`freebody.tolerances`); a file that grows past the
+    limit while being read is refused as well.
+    """
     try:
-        text = Path(path).read_text()
+        mode = os.stat(path).st_mode
+        if not stat.S_ISREG(mode):
+            raise FileRefused(what, f"not a regular file ({_file_kind(mode)})")
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+                     | getattr(os, "O_BINARY", 0))
     except FileNotFoundError:
-        raise InputError(f"{where}: no such file") from None
+        raise FileRefused(what, "no such file") from None
     except OSError as e:
-        raise InputError(f"{where}: cannot read: {e.strerror or e}") from None
+        raise FileRefused(what, f"cannot read: {e.strerror or e}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):  # replaced between the two checks
+            raise FileRefused(what, f"not a regular file ({_file_kind(st.st_mode)})")
+        if st.st_size > limit:
+            raise FileRefused(what, f"too large: {_mib(st.st_size)}, more than the {_mib(limit)} "
+                                    f"freebody reads from such a file")
+        chunks, size = [], 0
+        while size <= limit:
+            chunk = os.read(fd, min(limit + 1 - size, 1 << 24))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+        if size > limit:  # grew while being read
+            raise FileRefused(what, f"too large: more than the {_mib(limit)} freebody reads from "
+                                    f"such a file")
+        return b"".join(chunks)
+    except OSError as e:
+        raise FileRefused(what, f"cannot read: {e.strerror or e}") from None
+    finally:
+        os.close(fd)
+
+
+def read_json(path: Path, where: str, limit: int = tol.RESULTS_FILE_MAX_BYTES):
+    """The parsed JSON of a regular file of at most ``limit`` bytes; InputError starting with
+    ``where`` if it cannot be read or parsed."""
+    text = read_regular_file(path, limit, where).decode("utf-8")
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:
@@ -69,9 +134,13 @@ def write_text_atomic(path: Path, text: str) -> None:
     _write_atomic(path, lambda f: f.write(text.encode("utf-8")))
 
 
-def write_json_atomic(path: Path, data: dict) -> None:
-    """Write JSON (sorted keys, indent 1, non-finite -> null, a final newline) atomically."""
-    write_text_atomic(path, json.dumps(json_safe(data), sort_keys=True, indent=1, allow_nan=False) + "\n")
+def write_json_atomic(path: Path, data: dict, *, before_replace=None) -> None:
+    """Write JSON (sorted keys, indent 1, non-finite -> null, a final newline) atomically.
+
+    before_replace : called once the temporary file is complete on the disk, just before it is
+        renamed over ``path`` (the fault-injection point of :mod:`freebody.results.outdir`)."""
+    text = json.dumps(json_safe(data), sort_keys=True, indent=1, allow_nan=False) + "\n"
+    _write_atomic(path, lambda f: f.write(text.encode("utf-8")), before_replace)
 
 
 def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True) -> None:
@@ -79,9 +148,10 @@ def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True) -> None:
     _write_atomic(path, lambda f: (np.savez_compressed if compressed else np.savez)(f, **arrays))
 
 
-def _write_atomic(path: Path, write) -> None:
+def _write_atomic(path: Path, write, before_replace=None) -> None:
     """Create the parent folders, ``write(binary file)`` to a new temporary file beside ``path``,
-    fsync it and rename it to ``path``; the temporary file is removed if anything fails."""
+    fsync it, call ``before_replace()`` if given, and rename it to ``path``; the temporary file is
+    removed if anything fails."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = _new_temporary(path)
@@ -90,10 +160,14 @@ def _write_atomic(path: Path, write) -> None:
             write(f)
             f.flush()
             os.fsync(f.fileno())
+        if before_replace is not None:
+            before_replace()
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         if os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(e, OSError) and e.filename is None:  # a failed write names no file: name it
+            e.filename = str(path)
         raise
 
 

@@ -1,6 +1,7 @@
 """Executing one run: load the engine's adapter, build, step (the engine's output captured), and
 hand what it produced to :func:`~freebody.run.judge.finish`.  Never raises for an engine's failure:
-that is the run's status."""
+that is the run's status, including an engine that raises SystemExit (calls ``sys.exit``) or
+another BaseException; only KeyboardInterrupt goes through (Ctrl-C still interrupts)."""
 from __future__ import annotations
 
 import time
@@ -15,7 +16,8 @@ from .records import RunOutput, RunSpec, Simulated, Status, _describe, _identity
 
 
 def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: bool = True) -> RunOutput:
-    """Run one spec; never raises for an engine's failure (that is the run's status).
+    """Run one spec; never raises for an engine's failure (that is the run's status), even a
+    ``sys.exit()`` inside the engine; KeyboardInterrupt is re-raised.
 
     What the engine prints on the C level is captured into the result's ``engine_output``.
     """
@@ -42,7 +44,9 @@ def _adapter_class(engine: str):
     _execute as a skipped or failed run)."""
     try:
         return load_adapter(engine)
-    except Exception as e:
+    except KeyboardInterrupt:
+        raise
+    except BaseException as e:  # SystemExit from an engine's import included
         return e
 
 
@@ -70,6 +74,8 @@ def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool
     except EngineDiverged as e:
         sim = Simulated(e.trajectory, e.t, e.reason, version, settings, time.perf_counter() - t0,
                         adapter.compile_time_s if adapter is not None else None)
-    except Exception as e:
+    except KeyboardInterrupt:
+        raise
+    except BaseException as e:  # an engine calling sys.exit() fails its run, not freebody
         return _no_trajectory(base, Status.FAILED, _describe(e), time.perf_counter() - t0, version, settings)
     return finish(spec, sim, cache, identify_scheme, compare_with=cls.compare_with)

@@ -3,7 +3,7 @@
 Each run is :func:`freebody.run.execute.execute` of one :class:`~freebody.run.records.RunSpec`; the
 executors differ only in where it happens, never in the numbers.
 
-- :func:`run_serial`: in this process, one after another (``--jobs 1``).
+- :func:`run_serial`: in this process, one after another (``--no-isolation``: no isolation).
 - :class:`LocalPool`: ``jobs`` long-lived worker processes (``python -m freebody.run.worker``,
   spawned, never forked: forking a process that has imported JAX or an engine is unsafe), each in
   its own process group.  A worker runs one run at a time; a run that crashes its worker (even a

@@ -107,7 +107,9 @@ def compare_with_engine(pb: Problem, trajectory: Trajectory, spec: RunSpec, othe
         ref = cache.engine_run(pb, other, match[0], spec.dt, spec.steps)
     except EngineDiverged as e:
         return {**out, "message": f"{other} diverged at t = {e.t:.6g} s"}
-    except Exception as e:
+    except KeyboardInterrupt:
+        raise
+    except BaseException as e:  # the other engine's sys.exit() included
         return {**out, "message": f"{other} could not run: {_describe(e)}"}
     d = geodesic_angle(ref.quaternion_wxyz, trajectory.quaternion_wxyz)
     finite = bool(np.all(np.isfinite(d)))

@@ -2,6 +2,9 @@
 line, expanded into one :class:`~freebody.run.records.RunSpec` per run."""
 from __future__ import annotations
 
+import dataclasses
+import warnings
+
 import numpy as np
 
 from .. import tolerances as tol
@@ -114,11 +117,17 @@ def select_integrators(engine: str, offered: tuple[str, ...], requested: list[st
 
 def expand(problems: list[Problem], engines: list[str], integrators: list[str] | None,
            dts: list[float] | None, duration: float | None,
-           precisions: list[str] | None = None) -> list[RunSpec]:
-    """Every run of the matrix, in a stable order (case, dt, engine, integrator, precision).
+           precisions: list[str] | None = None, *, sources: list[str] | None = None) -> list[RunSpec]:
+    """Every run of the matrix, in a stable order (case, dt, engine, integrator, precision), each
+    run once: a run is identified by (case name, engine, integrator, precision, dt).
 
     precisions : None for every precision each engine offers (``Adapter.precisions``), else the
-    ones to run (see :func:`select_precisions`)."""
+    ones to run (see :func:`select_precisions`).
+    sources : where each problem came from (case names or paths), for messages.
+
+    Duplicates: a case given twice with the same content, or a time step listed twice (``--dt``
+    or the case's ``dt``), runs once, with a warning; two different cases with the same name are
+    bad input (InputError: their runs could not be told apart)."""
     if dts is not None:
         for d in dts:
             if not (np.isfinite(d) and d > 0):
@@ -134,8 +143,8 @@ def expand(problems: list[Problem], engines: list[str], integrators: list[str] |
             per_engine[engine] = select_integrators(engine, offered, integrators)
     per_precision = select_precisions({e: engine_precisions(e) for e in engines}, precisions)
     specs = []
-    for pb in problems:
-        for d in (dts or pb.dts):
+    for pb in unique_problems(problems, sources):
+        for d in _unique_dts(dts or pb.dts, "--dt" if dts else f"case {pb.name!r}: dt"):
             if duration is not None and duration < d:
                 raise InputError(f"--duration: {duration} s is shorter than dt = {d} s")
             if duration is None and pb.duration is not None and pb.duration < d * (1 - tol.DURATION_VS_DT_RTOL):
@@ -146,3 +155,54 @@ def expand(problems: list[Problem], engines: list[str], integrators: list[str] |
                     for prec in per_precision[engine]:
                         specs.append(RunSpec(pb, engine, integ, float(d), steps, prec))
     return specs
+
+
+def unique_problems(problems: list[Problem], sources: list[str] | None = None) -> list[Problem]:
+    """The problems with exact duplicates (same name, same content) merged, with a warning;
+    InputError for two problems with the same name and different contents."""
+    sources = list(sources) if sources is not None else [f"case #{i + 1}" for i in range(len(problems))]
+    first: dict[str, tuple[int, bytes]] = {}
+    out = []
+    for i, pb in enumerate(problems):
+        content = problem_content(pb)
+        if pb.name not in first:
+            first[pb.name] = (i, content)
+            out.append(pb)
+            continue
+        j, seen = first[pb.name]
+        where = f"{sources[j]}" if sources[j] == sources[i] else f"{sources[j]} and {sources[i]}"
+        if content != seen:
+            raise InputError(f"case {pb.name!r}: two different cases have this name ({where}); runs are "
+                             f"identified by the case name, so give each case its own name")
+        warnings.warn(f"case {pb.name!r} is given twice ({where}); running it once")
+    return out
+
+
+def _unique_dts(dts, where: str) -> list[float]:
+    """The time steps, each once (exactly equal floats), with a warning for a repeated one."""
+    out: list[float] = []
+    seen: set[float] = set()  # a set beside the list: a million dts stay linear
+    for d in dts:
+        if float(d) in seen:
+            warnings.warn(f"{where}: {float(d)!r} s is listed twice; running it once")
+        else:
+            seen.add(float(d))
+            out.append(float(d))
+    return out
+
+
+def problem_content(pb: Problem) -> bytes:
+    """A canonical encoding of everything in a Problem (arrays bit for bit): equal for two
+    problems exactly when they are the same case."""
+    def enc(v):
+        if isinstance(v, np.ndarray):
+            return ("array", v.dtype.str, v.shape, v.tobytes())
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return (type(v).__name__,) + tuple((f.name, enc(getattr(v, f.name))) for f in dataclasses.fields(v))
+        if isinstance(v, (list, tuple)):
+            return tuple(enc(x) for x in v)
+        if isinstance(v, float):
+            return ("float", v.hex())
+        return (type(v).__name__, repr(v))
+
+    return repr(enc(pb)).encode("utf-8")

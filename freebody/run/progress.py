@@ -5,6 +5,8 @@ import sys
 import time
 from typing import TextIO
 
+from ..errors import printable
+
 WIDTH = 150  # characters of a progress line shown on a terminal
 
 
@@ -31,7 +33,8 @@ class ProgressDisplay:
         self.done += 1
         if not self.enabled:
             return
-        line = f"[{self.done}/{self.total}{self.unit}] {time.perf_counter() - self.t0:6.1f}s {text}"
+        # printable: a case name may hold control characters or terminal escape sequences
+        line = f"[{self.done}/{self.total}{self.unit}] {time.perf_counter() - self.t0:6.1f}s {printable(text)}"
         if self.tty:
             self.stream.write("\r\033[K" + line[:WIDTH] + ("\n" if self.done == self.total else ""))
         elif self.done % self.every == 0 or self.done == self.total:
@@ -44,5 +47,5 @@ class ProgressDisplay:
             return
         if self.tty:
             self.stream.write("\n")
-        self.stream.write(text + "\n")
+        self.stream.write(printable(text) + "\n")
         self.stream.flush()

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 
 from ..adapters.base import REFERENCE_ENGINE
+from ..adapters.capture import cap_line
 from ..numbers import finite_or_none
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.problem import Problem
@@ -138,7 +139,7 @@ def _describe(e: BaseException) -> str:
     msg = str(e).strip().splitlines()
     where = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
     loc = f" (at {where.filename.rsplit('/', 1)[-1]}:{where.lineno})" if where else ""
-    return f"{type(e).__name__}: {msg[0] if msg else ''}{loc}"
+    return f"{type(e).__name__}: {cap_line(msg[0]) if msg else ''}{loc}"  # a 50 MB message: cut
 
 
 def _no_trajectory(base, status, message, wall, version=None, settings=None, diverged_at=None) -> RunOutput:

@@ -1,13 +1,11 @@
 """Execute a list of runs (in this process, in worker processes or on a dask cluster), show
-progress, write results.json and the trajectory files; keep the finished runs on Ctrl-C."""
+progress, write results.json and the trajectory files (through :mod:`freebody.results.outdir`: one
+writer per output folder, one atomic publish); keep the finished runs on Ctrl-C, SIGTERM, SIGHUP."""
 from __future__ import annotations
 
 import contextlib
 import os
-import shutil
-import signal
 import sys
-import threading
 from dataclasses import replace
 from pathlib import Path
 from typing import Callable
@@ -15,7 +13,8 @@ from typing import Callable
 from ..adapters.base import load_adapter
 from ..errors import InputError
 from ..results.document import results_document, save_trajectory, trajectory_filename
-from ..results.io import is_temporary, write_json_atomic
+from ..results.outdir import OutputFolder, out_folder, output_lock
+from . import interrupts
 from .progress import ProgressDisplay
 from .records import RunOutput, RunSpec
 
@@ -42,46 +41,70 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
               progress: bool = True, save_every: int = 1,
               on_result: Callable[[RunOutput], None] | None = None, *, jobs: int = 1,
               timeout: float | None = None, executor: str = "local", scheduler: str | None = None,
-              keep_arrays: bool = False) -> tuple[dict, list[RunOutput]]:
+              keep_arrays: bool = False, isolate: bool = True) -> tuple[dict, list[RunOutput]]:
     """Execute every spec, write results.json and the trajectory files to ``out_dir`` (if not None).
 
-    jobs : worker processes (executor "local"); 1 with no ``timeout``: in this process, serially.
-    timeout : per-run time limit, s; a run past it is killed and ``failed`` (needs a worker
-        process, so ``jobs=1`` with a timeout runs in one worker process).
+    jobs : worker processes (executor "local"); each run is isolated in a worker process whatever
+        ``jobs`` is (``jobs=1``: one worker), so a crash or ``sys.exit`` in an engine fails its run only.
+    isolate : False: every run in this process, one after another (``--no-isolation``, for
+        debugging: an engine's segfault then ends this process); needs ``jobs=1``, no ``timeout``.
+    timeout : per-run time limit, s; a run past it is killed and ``failed`` (needs a worker process).
     executor, scheduler : "local", or "dask" with the address of a dask.distributed scheduler.
     save_every : keep every ``save_every``-th sample in the trajectory files (metrics use all).
     keep_arrays : give each RunOutput its trajectory, truth and series (else only ``result``).
 
     Returns (the results.json document, the RunOutputs in spec order); ``on_result`` is called
     with each RunOutput as it finishes.  The numbers do not depend on ``jobs`` or ``executor``.
-    On KeyboardInterrupt the workers are stopped, the finished runs are written with
-    ``"incomplete": true`` and the interrupt is re-raised.
+    ``out_dir`` is locked for the call (another process writing it: InputError); the trajectory
+    files go to a folder of this call, ``trajectories/<n>/``, and results.json is published once
+    (see :mod:`freebody.results.outdir`).  Specs must be unique (:attr:`RunSpec.key`).
+    On KeyboardInterrupt (Ctrl-C) or SIGTERM / SIGHUP (:class:`~freebody.run.interrupts.Interrupted`)
+    the workers are stopped, the finished runs are written with ``"incomplete": true`` (none
+    finished: results.json is left as it was; a complete previous one is kept as
+    results.previous.json) and the interrupt is re-raised.
     """
     from .executor import plan
 
-    _check_options(jobs, timeout, save_every, executor, scheduler)
-    out_path = Path(out_dir) if out_dir is not None else None
+    check_options(jobs, timeout, save_every, executor, scheduler, isolate)
+    _check_unique(specs)
+    out_path = out_folder(out_dir) if out_dir is not None else None
     bar = ProgressDisplay(len(specs), enabled=progress)
-    finished = _Finished(out_path, engine_versions(engines), bar, on_result)
     local = executor == "local"
-    if finished.staging is not None:
-        shutil.rmtree(finished.staging, ignore_errors=True)  # left by a run killed with SIGKILL
-    tasks = plan(specs, save_dir=str(finished.staging) if finished.staging is not None and local else None,
-                 save_every=save_every, ship_saved=out_path is not None and not local,
-                 keep_arrays=keep_arrays)
-    try:
-        _execute_tasks(tasks, finished.add, executor=executor, jobs=jobs, timeout=timeout,
-                       scheduler=scheduler, engines=engines)
-    except KeyboardInterrupt:
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(interrupts.signals_interrupt())
+        if out_path is not None:
+            stack.enter_context(output_lock(out_path))  # before any work: a second writer refuses at once
+        versions = engine_versions(engines)
+        folder = OutputFolder(out_path) if out_path is not None else None
+        finished = _Finished(folder, versions, bar, on_result)
+        try:
+            tasks = plan(specs, save_dir=str(folder.trajectory_dir) if folder is not None and local else None,
+                         save_every=save_every, ship_saved=folder is not None and not local,
+                         keep_arrays=keep_arrays)
+            _execute_tasks(tasks, finished.add, executor=executor, jobs=jobs, timeout=timeout,
+                           scheduler=scheduler, engines=engines, isolate=isolate)
+        except KeyboardInterrupt as e:
+            with _interrupts_deferred():
+                finished.interrupted(e)
+            raise
         with _interrupts_deferred():
-            finished.interrupted()
-        raise
-    with _interrupts_deferred():
-        doc = finished.write(incomplete=False)
+            doc = finished.write(incomplete=False)
     return doc, [finished.outputs[i] for i in sorted(finished.outputs)]
 
 
-def _check_options(jobs, timeout, save_every, executor: str, scheduler: str | None) -> None:
+def _check_unique(specs: list[RunSpec]) -> None:
+    """InputError if two specs are the same run (two runs would share a trajectory file and a
+    results.json identity; :func:`freebody.run.matrix.expand` never makes such a list)."""
+    seen = set()
+    for s in specs:
+        if s.key in seen:
+            raise InputError(f"case {s.problem.name!r}: the run {s.engine}/{s.integrator}/{s.precision} "
+                             f"at dt = {s.dt!r} s is listed twice; each run must be listed once")
+        seen.add(s.key)
+
+
+def check_options(jobs, timeout, save_every, executor: str, scheduler: str | None,
+                   isolate: bool = True) -> None:
     """InputError naming the command-line option of the first unusable argument of run_specs."""
     if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
         raise InputError(f"--jobs: must be an integer >= 1, got {jobs!r}")
@@ -96,32 +119,45 @@ def _check_options(jobs, timeout, save_every, executor: str, scheduler: str | No
                          "scheduler (e.g. tcp://127.0.0.1:8786)")
     if executor != "dask" and scheduler:
         raise InputError("--scheduler: only used with --executor dask")
+    if not isolate:
+        for bad, option in ((jobs != 1, f"--jobs {jobs}"), (timeout is not None, "--timeout"),
+                            (executor != "local", f"--executor {executor}")):
+            if bad:
+                raise InputError(f"--no-isolation: runs one run after another in this process; "
+                                 f"{option} needs worker processes (drop one of the two)")
 
 
 class _Finished:
     """The finished runs of one run_specs call, by spec index: each one's trajectory file saved,
     the progress shown, ``on_result`` called; written as results.json on demand.
 
-    Trajectory files are written to a staging folder and published with results.json, so a kill
-    at any moment leaves the previous results.json with the trajectory files it names.
+    Trajectory files are written to this call's own folder (``folder``, an OutputFolder) and
+    published with results.json, so a kill at any moment leaves a results.json with the trajectory
+    files it names.
     """
 
-    def __init__(self, out_path: Path | None, versions: dict[str, str | None], bar: ProgressDisplay,
+    def __init__(self, folder: OutputFolder | None, versions: dict[str, str | None], bar: ProgressDisplay,
                  on_result: Callable[[RunOutput], None] | None):
-        self.out_path, self.versions, self.bar, self.on_result = out_path, versions, bar, on_result
-        self.staging = out_path / STAGING if out_path is not None else None
+        self.folder, self.versions, self.bar, self.on_result = folder, versions, bar, on_result
         self.runs: dict[int, dict] = {}
         self.outputs: dict[int, RunOutput] = {}
 
     def add(self, index: int, payload: dict) -> None:
         """A task's payload: its ``result``, and its trajectory and truth (``saved``) when a worker
-        elsewhere shipped them (else it saved them itself) and its arrays when asked for."""
+        elsewhere shipped them (else it saved them itself, its ``trajectory`` the file name in the
+        folder) and its arrays when asked for.  A worker's full disk (``environment_error``, see
+        :mod:`.worker`) is raised as the OSError it was: the invocation ends, results.json untouched."""
+        if payload.get("environment_error"):
+            raise OSError(*payload["environment_error"])
         result = payload["result"]
-        if "saved" in payload and self.staging is not None:
-            rel = trajectory_filename(result.to_json())
-            tr, truth = payload["saved"]
-            save_trajectory(self.staging, rel, tr, truth, every=1)  # thinned by the worker already
-            result = replace(result, trajectory=rel)
+        if self.folder is not None:
+            if "saved" in payload:
+                name = trajectory_filename(result.to_json())
+                tr, truth = payload["saved"]
+                save_trajectory(self.folder.trajectory_dir, name, tr, truth, every=1)  # thinned already
+                result = replace(result, trajectory=name)
+            if result.trajectory:  # relative to the output folder, as results.json stores it
+                result = replace(result, trajectory=self.folder.relative(result.trajectory))
         out = RunOutput(result, *(payload.get("arrays") or (None, None, None)))
         self.runs[index] = result.to_json()
         self.outputs[index] = out
@@ -130,33 +166,43 @@ class _Finished:
             self.on_result(out)
 
     def write(self, incomplete: bool) -> dict:
-        """The results document of the runs so far; with an output folder, its trajectory files
-        published and results.json written."""
+        """The results document of the runs so far; with an output folder, published as results.json."""
         doc = results_document([self.runs[i] for i in sorted(self.runs)], self.versions, incomplete=incomplete)
-        if self.out_path is not None:
-            _publish_trajectories(self.out_path)
-            write_json_atomic(self.out_path / "results.json", doc)
+        if self.folder is not None:
+            self.folder.publish(doc)
         return doc
 
-    def interrupted(self) -> None:
-        """Write what an interrupt kept (marked incomplete) and say so."""
-        _remove_partial_trajectories(self.staging)
+    def interrupted(self, exc: BaseException) -> None:
+        """Write what an interrupt kept (marked incomplete) and say so; with no run finished, leave
+        the output folder's results.json as it was."""
+        what = f"{interrupts.describe(exc)}: {self.bar.done} of {self.bar.total} runs finished"
+        if self.folder is None:
+            self.bar.note(what)
+            return
+        results = self.folder.path / "results.json"
+        if not self.runs:
+            self.folder.abandon()
+            self.bar.note(f"{what}; nothing written" + (f" ({results} is as it was)" if results.exists() else ""))
+            return
         self.write(incomplete=True)
-        kept = f"; kept in {self.out_path / 'results.json'} (marked incomplete)" if self.out_path is not None else ""
-        self.bar.note(f"interrupted: {self.bar.done} of {self.bar.total} runs finished{kept}")
+        kept = (f"; the previous complete results are kept in {self.folder.path / 'results.previous.json'}"
+                if self.folder.kept is not None else "")
+        self.bar.note(f"{what}; kept in {results} (marked incomplete){kept}")
 
 
 def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executor: str, jobs: int,
-                   timeout: float | None, scheduler: str | None, engines: list[str]) -> None:
-    """Execute the planned tasks, calling ``on_done(index, payload)`` as each finishes: in this
-    process (one job, no timeout), in local worker processes, or on a dask cluster."""
+                   timeout: float | None, scheduler: str | None, engines: list[str],
+                   isolate: bool = True) -> None:
+    """Execute the planned tasks, calling ``on_done(index, payload)`` as each finishes: in local
+    worker processes (``jobs`` of them, one for ``jobs=1``), on a dask cluster, or in this process
+    (``isolate=False``)."""
     from .executor import LocalPool, run_serial
 
     if executor == "dask":
         from .dask_executor import run_dask
 
         run_dask(tasks, scheduler, timeout, engines, on_done)
-    elif jobs == 1 and timeout is None:
+    elif not isolate:
         run_serial(tasks, on_done)
     else:
         pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines)
@@ -167,46 +213,7 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
                 pool.close(kill=sys.exc_info()[0] is not None)
 
 
-@contextlib.contextmanager
 def _interrupts_deferred():
-    """Hold off Ctrl-C while results are being written; raise it afterwards."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-    if caught:
-        raise KeyboardInterrupt
+    """Hold off Ctrl-C, SIGTERM and SIGHUP while results are being written; raise it afterwards."""
+    return interrupts.deferred()
 
-
-STAGING = ".staging"  # inside the output folder: trajectory files of the run in progress
-
-
-def _publish_trajectories(out_path: Path) -> None:
-    """Replace ``trajectories/`` by the staged files of this run (the previous run's files go with
-    its results.json, which is replaced right after).  Between the two renames and the write of
-    results.json a kill can leave the old results.json beside the new files: a window of a few
-    system calls, against the whole run otherwise."""
-    staged = out_path / STAGING / "trajectories"
-    final, old = out_path / "trajectories", out_path / ".trajectories.old"
-    if staged.is_dir():
-        shutil.rmtree(old, ignore_errors=True)
-        if final.exists():
-            final.rename(old)
-        staged.rename(final)
-        shutil.rmtree(old, ignore_errors=True)
-    shutil.rmtree(out_path / STAGING, ignore_errors=True)
-
-
-def _remove_partial_trajectories(staging: Path | None) -> None:
-    """Remove the temporary files of trajectories being written by a killed worker."""
-    if staging is None or not (staging / "trajectories").is_dir():
-        return
-    for p in (staging / "trajectories").iterdir():
-        if is_temporary(p.name):
-            with contextlib.suppress(OSError):
-                p.unlink()

@@ -18,9 +18,15 @@ Messages, worker -> parent: ``("ready", pid)`` after init; for each run ``("star
 its truth is ready and its engine starts, then ``("done", index, payload)`` (see :func:`finish`).
 
 Every run goes through :func:`freebody.run.execute.execute`, exactly as a serial run does.
+
+A file that cannot be written for lack of room (a full disk, a quota, a file size limit, a
+read-only file system: :data:`DISK_ERRNOS`) is no run's failure: the payload carries
+``environment_error`` ((errno, strerror, filename)) and the parent ends the invocation with it,
+leaving the previous results.json as it was.
 """
 from __future__ import annotations
 
+import errno
 import os
 import sys
 import threading
@@ -34,6 +40,18 @@ from .execute import execute
 from .records import RunOutput, RunSpec
 from .sharedcache import GroupTruthCache
 from ..results.document import save_trajectory, trajectory_filename
+
+# errno values of a write that failed for lack of room or a read-only file system: the environment's
+# error, which ends the invocation, not a run's
+DISK_ERRNOS = frozenset(e for e in (errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", None), errno.EROFS)
+                        if e is not None)
+
+
+def environment_error(e: BaseException) -> tuple | None:
+    """(errno, strerror, filename) of an OSError in :data:`DISK_ERRNOS`, else None."""
+    if isinstance(e, OSError) and e.errno in DISK_ERRNOS:
+        return (e.errno, e.strerror, e.filename)
+    return None
 
 
 @dataclass(frozen=True)
@@ -77,7 +95,12 @@ def finish(out: RunOutput, task: RunTask) -> dict:
     if out.trajectory is not None:
         if task.save_dir is not None:
             rel = trajectory_filename(result.to_json())
-            save_trajectory(Path(task.save_dir), rel, out.trajectory, out.truth, every=task.save_every)
+            try:
+                save_trajectory(Path(task.save_dir), rel, out.trajectory, out.truth, every=task.save_every)
+            except OSError as e:  # say which file (a write error has no file name)
+                if e.filename is None:
+                    e.filename = str(Path(task.save_dir) / rel)
+                raise
             result = replace(result, trajectory=rel)
         elif task.ship_saved:
             payload["saved"] = thin_for_saving(out, task.save_every)
@@ -197,9 +220,11 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         try:
             payload = runner.run(task)
-        except Exception as e:  # a bug outside the engine (execute never raises for the engine's)
+        except BaseException as e:  # a bug outside the engine (execute never raises for the engine's)
             payload = failed_payload(task.spec, f"the worker failed: {type(e).__name__}: {e}",
                                      time.perf_counter() - t0)
+            if environment_error(e) is not None:  # a full disk: the parent ends the invocation
+                payload["environment_error"] = environment_error(e)
         try:
             conn_out.send(("done", task.index, payload))
         except (BrokenPipeError, OSError):

@@ -10,13 +10,15 @@ Errors of an approximation against the exact result:
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from .. import tolerances as tol
-from ..errors import InputError
+from ..errors import InputError, printable
+from ..input.casefile import validate_inertia, validate_mass, validate_volume
 from ..reference_impl import approx, massprops, primitives
 from ..reference_impl.mesh import MeshError, TriangleMesh, mass_properties
 
@@ -70,23 +72,47 @@ def load_target(target: str, size, *, density: float | None = None, mass: float 
                              f"got {len(size)}")
         s = np.array(size, dtype=float)
         vol = massprops.volume(target, s)
+        validate_volume(vol, lambda why: _fail("--size", f"a {target} of this size: {why}"))
         rho = density if density is not None else mass / vol
         m = float(mass) if mass is not None else rho * vol
+        _check_exact(m, rho, massprops.inertia(target, s, m), "--size", "--mass" if mass is not None else "--density")
         label = f"{target} size {s.tolist()} m ({massprops.SIZE_DOC[target]}); closed form"
         return Target(target, label, "shape", target, s, None, float(rho), vol, m, np.zeros(3),
                       massprops.inertia(target, s, m), approx.solid_from_shape(target, s), mass is not None)
-    if not path.is_file():
-        raise InputError(f"{target}: no such file, and not a shape (shapes: {', '.join(massprops.SHAPES)})")
+    if os.path.isdir(path):
+        raise InputError(f"{printable(target)}: is a folder, not a mesh file (.obj, .stl) or a shape (shapes: "
+                         f"{', '.join(massprops.SHAPES)})")
+    if not os.path.exists(path):  # something that is not a regular file: reading it says what it is
+        raise InputError(f"{printable(target)}: no such file, and not a shape (shapes: "
+                         f"{', '.join(massprops.SHAPES)})")
     if size is not None:
         raise InputError("--size: only with a shape; a mesh's size is in its coordinates (m)")
     try:
         mesh, props = body_from_mesh(path, density=density, mass=mass)
     except MeshError as e:
-        raise InputError(f"{target}: {e}") from None
+        raise InputError(f"{printable(target)}: {e}") from None
+    validate_volume(props.volume, lambda why: _fail(printable(target), why))
+    _check_exact(props.mass, props.mass / props.volume, props.inertia, printable(target),
+                 "--mass" if mass is not None else "--density")
     label = (f"{target}: closed triangle mesh, {len(mesh.triangles)} triangles, "
              f"{len(np.unique(mesh.triangles))} vertices; exact polyhedral integration")
     return Target(path.stem, label, "mesh", None, None, mesh, props.mass / props.volume, props.volume,
                   props.mass, props.com, props.inertia, approx.solid_from_mesh(mesh), mass is not None)
+
+
+def _fail(where: str, why: str):
+    raise InputError(f"{where}: {why}")
+
+
+def _check_exact(mass: float, density: float, I: np.ndarray, size_option: str, given_option: str) -> None:
+    """InputError unless the exact mass (kg), density (kg/m^3) and inertia are numbers float64 can
+    compute with (from INPUT_POSITIVE_MIN to INPUT_MAGNITUDE_MAX of freebody.tolerances)."""
+    validate_mass(mass, lambda why: _fail(given_option, f"with this size, the {why}"))
+    if not (tol.INPUT_POSITIVE_MIN <= density <= tol.INPUT_MAGNITUDE_MAX):
+        _fail(given_option, f"with this size, the density {density:.6g} kg/m^3 is not from "
+                            f"{tol.INPUT_POSITIVE_MIN:g} to {tol.INPUT_MAGNITUDE_MAX:g}: too large or too "
+                            "small to compute with in float64")
+    validate_inertia(I, lambda why: _fail(size_option, f"the inertia tensor: {why}"))
 
 
 # --- text ---------------------------------------------------------------------------------------

@@ -236,6 +236,15 @@ def random_bodies(settings: SweepSettings) -> list[SweepBody]:
     return [random_body(rng, i, settings) for i in range(settings.count)]
 
 
+def first_body_specs(settings: SweepSettings, engines: list[str], integrators: list[str] | None = None,
+                     precisions: list[str] | None = None) -> list[RunSpec]:
+    """The runs of the sweep's first body (every body has as many, with the same steps): what
+    :mod:`freebody.run.budget` multiplies by ``count`` before anything is drawn."""
+    body = random_body(np.random.default_rng(settings.seed), 0, settings)
+    extra = {"precisions": precisions} if precisions else {}
+    return expand([body.problem], engines, integrators, None, None, **extra)
+
+
 # --- running ------------------------------------------------------------------------------------
 
 def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[str] | None = None,

@@ -1,0 +1,107 @@
+"""The per-case figures drawn fast without changing what they show: a line is drawn through its
+per-pixel-column envelope (same pixels, maxima and ends kept), the error series are the metrics'
+(each truth read once), and the figures are the same whether drawn in one process or several."""
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from freebody.cli import main
+from freebody.reference_impl.problem import Problem
+from freebody.report import data as rd
+from freebody.report import plots
+from freebody.report.render import convergence_of
+from freebody.results.document import load_trajectory
+from freebody.run.metrics import series
+
+# |series recomputed for the report - metrics.series| on the same arrays: the same formulas, so
+# round-off of a different operation grouping at most.
+SERIES_RTOL = 1e-12
+# Envelope against every sample of a 200 000-sample random walk (the worst case: a dense band),
+# drawn on the Agg canvas: where anti-aliased segments overlap, the shading depends a little on
+# which samples are joined.  Measured 4.7 % of the line's pixels differing by more than a quarter
+# of the grey range (36 % with an 800-sample stride); smooth curves differ far less.
+ENVELOPE_PIXEL_FRACTION = 0.06
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory) -> Path:
+    """The reference engine on two cases with gravity and loads (offset_push) and without (quiz),
+    at two time steps."""
+    out = tmp_path_factory.mktemp("figures_run")
+    assert main(["run", "quiz", "offset_push", "--engine", "reference", "--integrator", "euler-quat",
+                 "--integrator", "rk4", "--duration", "0.3", "--dt", "0.01", "--dt", "0.005",
+                 "--out", str(out), "--quiet", "--no-report"]) == 0
+    return out
+
+
+def _random_walk(n: int, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return np.linspace(0.0, 10.0, n), np.cumsum(rng.normal(size=n))
+
+
+def test_envelope_keeps_ends_and_extremes():
+    x, y = _random_walk(100_000)
+    keep = plots.envelope(x, y, 300)
+    assert np.all(np.diff(keep) > 0) and len(keep) <= 4 * 300
+    assert {0, len(x) - 1, int(np.argmax(y)), int(np.argmin(y))} <= set(keep.tolist())
+    small = plots.envelope(x[:1000], y[:1000], 300)
+    assert np.array_equal(small, np.arange(1000))  # few samples: all of them
+    flat = plots.envelope(np.zeros(5000), y[:5000], 300)
+    assert len(flat) == 5000  # no x extent: nothing to bin
+
+
+def _draw(x, y) -> np.ndarray:
+    from PIL import Image
+
+    fig = plots._figure(5.0, 3.0)
+    ax = fig.add_subplot(1, 1, 1)
+    ax.plot(x, y, linewidth=1, color="tab:blue")
+    return np.asarray(Image.open(io.BytesIO(plots.png_bytes(fig))).convert("L")).astype(int)
+
+
+def test_envelope_draws_the_same_line():
+    x, y = _random_walk(200_000)
+    fig = plots._figure(5.0, 3.0)
+    columns = plots._columns(fig.add_subplot(1, 1, 1))
+    keep = plots.envelope(x, y, plots.ENVELOPE_PER_PIXEL * columns)
+    full, thin = _draw(x, y), _draw(x[keep], y[keep])
+    line = full < 250
+    differ = np.abs(full - thin) > 64
+    assert differ.sum() <= ENVELOPE_PIXEL_FRACTION * line.sum()
+
+
+def test_report_series_are_the_metrics_series(run_dir):
+    doc = json.loads((run_dir / "results.json").read_text())
+    for case in ("quiz", "offset_push"):
+        physics = rd.case_physics(doc, case)
+        problem = Problem(case, "", physics.body, None, physics.gravity)
+        for dt in (0.01, 0.005):
+            runs = [r for r in doc["runs"] if r["case"] == case and r["dt"] == dt]
+            reader = rd.SeriesReader(physics)
+            for r in runs:
+                got, truth = reader.read(run_dir / r["trajectory"], r)
+                tr, tr_truth = load_trajectory(run_dir / r["trajectory"])
+                want = series(problem, tr, tr_truth)
+                for name in ("orientation_error", "energy_error", "angular_momentum_error"):
+                    np.testing.assert_allclose(getattr(got, name), getattr(want, name),
+                                               rtol=SERIES_RTOL, atol=0.0, err_msg=name)
+                assert np.max(got.orientation_error) == pytest.approx(
+                    r["metrics"]["orientation_error_max_rad"], rel=SERIES_RTOL)
+            assert len(reader._truths) == 1  # one truth per case and dt, read once
+
+
+def test_figures_are_the_same_in_one_process_or_several(run_dir):
+    doc = json.loads((run_dir / "results.json").read_text())
+    runs, conv = doc["runs"], convergence_of(doc)
+    physics = {c: rd.case_physics(doc, c) for c in rd.by_case(runs)}
+    serial, notes1 = plots.render_figures(runs, conv, physics, run_dir, jobs=1)
+    parallel, notes2 = plots.render_figures(runs, conv, physics, run_dir, jobs=2)
+    assert list(serial) == list(parallel) == ["heatmap", "convergence", "speed", ("quiz", 0.01),
+                                              ("quiz", 0.005), ("offset_push", 0.01), ("offset_push", 0.005)]
+    assert serial == parallel and notes1 == notes2
+    assert all(png.startswith(b"\x89PNG") for png in serial.values())
