@@ -40,7 +40,14 @@ pytestmark = pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="ne
 
 def _start(out: Path, jobs: int, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-c", WITH_CRASHER, *RUN, "--out", str(out), "--jobs", str(jobs), *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_sigint_as_at_a_terminal)
+
+
+def _sigint_as_at_a_terminal() -> None:
+    """SIGINT at its default in the child: a shell's background job (``cmd &``, e.g. a CI script run
+    that way) inherits SIGINT ignored, and Python then installs no KeyboardInterrupt handler."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _wait_for_finished_runs(proc: subprocess.Popen, n: int) -> list[str]:

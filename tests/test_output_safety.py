@@ -83,7 +83,13 @@ def _freebody(*args: str, env: dict | None = None, timeout: float = START_BUDGET
 
 def _start_with_crasher(*args: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-c", WITH_CRASHER, *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_sigint_as_at_a_terminal)
+
+
+def _sigint_as_at_a_terminal() -> None:
+    """SIGINT at its default in the child: a shell's background job (``cmd &``, e.g. a CI script run
+    that way) inherits SIGINT ignored, and Python then installs no KeyboardInterrupt handler."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _consistent(out: Path) -> dict:
