@@ -520,6 +520,7 @@ def _render_parallel(tasks: list[tuple], jobs: int) -> list:
     results: list = []
     busy: dict = {}  # worker -> its task
     workers = []
+    finished = False
     path = os.pathsep.join(p for p in sys.path if p)  # the workers import freebody as this process does
     try:
         for _ in range(min(jobs, len(tasks))):
@@ -553,18 +554,22 @@ def _render_parallel(tasks: list[tuple], jobs: int) -> list:
                 results.append(payload if ok else _figure_task(task))
                 if ok:
                     give(w)
+        finished = True
     finally:
         for w in workers:
             try:
-                w.stdin.close()
+                w.stdin.close()  # end of tasks: an idle worker exits
             except OSError:
                 pass
         for w in workers:
+            if not finished:  # interrupted (or failed) here: a busy worker is not waited for
+                w.kill()
             try:
                 w.wait(timeout=5)
             except subprocess.TimeoutExpired:
                 w.kill()
                 w.wait()
+            w.stdout.close()
     results += [_figure_task(t) for t in pending]  # none left unless every worker failed
     return results
 
