@@ -5,12 +5,12 @@ log axis) a non-positive value is left out, never plotted as a number.  Each fig
 few per case (one 4-panel figure per case and dt).
 
 Speed (the default suite's report: 735 runs, 35 case figures, 450 MB of trajectories): a line of
-N samples is drawn through at most 4 samples per pixel column of its panel (the first, last,
-lowest and highest of the column, :func:`envelope`), which draws the same pixels as all N and
-keeps every maximum and the last sample before a divergence; the runs of a figure share one truth,
-read and reduced once (:class:`freebody.report.data.SeriesReader`); titles are placed without
-measuring the axes; PNGs are encoded as RGB; and :func:`render_figures` draws the figures in
-parallel processes when there are many.
+N samples is drawn through at most 4 samples per envelope column, ENVELOPE_PER_PIXEL columns per
+pixel of its panel (the first, last, lowest and highest of the column, :func:`envelope`), which
+draws what all N draw and keeps every maximum and the last sample before a divergence; the runs of
+a figure share one truth, read and reduced once (:class:`freebody.report.data.SeriesReader`);
+titles are placed without measuring the axes; PNGs are encoded as RGB; and :func:`render_figures`
+draws the figures in parallel processes when there are many (docs/reports.md, "Speed").
 """
 from __future__ import annotations
 
@@ -521,13 +521,15 @@ def _render_parallel(tasks: list[tuple], jobs: int) -> list:
     busy: dict = {}  # worker -> its task
     workers = []
     finished = False
-    path = os.pathsep.join(p for p in sys.path if p)  # the workers import freebody as this process does
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # import as we do
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")  # the workers are the parallelism: no BLAS threads on top
     try:
         for _ in range(min(jobs, len(tasks))):
             try:
                 workers.append(subprocess.Popen([sys.executable, "-m", "freebody.report.plots"],
                                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                                env={**os.environ, "PYTHONPATH": path}))
+                                                env=env))
             except OSError:
                 break
 
