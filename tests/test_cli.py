@@ -11,21 +11,8 @@ import pytest
 from freebody.adapters.base import REFERENCE_ENGINE, registry
 from freebody.cli import main
 
-GOOD = """name = "good"
-description = "A valid case that the bad ones are mutations of."
-duration = 0.05
-dt = [0.01]
-[body]
-mass = 1.0
-inertia = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]
-[initial]
-position = [0.0, 0.0, 0.0]
-orientation = [1.0, 0.0, 0.0, 0.0]
-linear_velocity = [0.0, 0.0, 0.0]
-angular_velocity = [0.01, 5.0, 0.0]
-[world]
-gravity = [0.0, 0.0, 0.0]
-"""
+from case_text import GOOD  # noqa: E402  (tests/ is on sys.path, as for conftest)
+
 
 # (id, replacement of a line of GOOD or text appended, words the message must contain)
 BAD_CASES = [

@@ -29,23 +29,9 @@ from freebody.errors import printable
 from freebody.report.summary import summary_table
 from freebody.run.progress import ProgressDisplay
 
-GOOD = """name = "good"
-description = "A valid case that the hostile ones are mutations of."
-duration = 0.05
-dt = [0.01]
-[body]
-mass = 1.0
-inertia = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]
-[initial]
-position = [0.0, 0.0, 0.0]
-orientation = [1.0, 0.0, 0.0, 0.0]
-linear_velocity = [0.0, 0.0, 0.0]
-angular_velocity = [0.01, 5.0, 0.0]
-[world]
-gravity = [0.0, 0.0, 0.0]
-"""
-INERTIA = "inertia = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]"
-MASS_AND_INERTIA = "mass = 1.0\n" + INERTIA
+from case_text import INERTIA, MASS_AND_INERTIA, case_text  # noqa: E402
+
+GOOD = case_text(description="A valid case that the hostile ones are mutations of.")
 ESC = "\x1b"
 
 

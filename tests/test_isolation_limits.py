@@ -37,26 +37,14 @@ from freebody.results import io as results_io
 from freebody.results.io import FileRefused, read_regular_file
 from freebody.run import budget
 
+from case_text import MASS_AND_INERTIA, case_text  # noqa: E402
+
 TESTS = Path(__file__).resolve().parent
 SUBPROCESS_TIMEOUT_S = 120  # a FIFO read that blocks (the regression) fails the test at this point
 MIB = 2 ** 20
 SMALL_MEMORY = 64 * MIB  # the mocked memory available of the budget tests
 
-CASE = """name = "tiny"
-description = "A small case for the isolation and limits tests."
-duration = 0.02
-dt = [0.01]
-[body]
-{body}
-[initial]
-position = [0.0, 0.0, 0.0]
-orientation = [1.0, 0.0, 0.0, 0.0]
-linear_velocity = [0.0, 0.0, 0.0]
-angular_velocity = [0.01, 5.0, 0.0]
-[world]
-gravity = [0.0, 0.0, 0.0]
-"""
-INERTIA_BODY = "mass = 1.0\ninertia = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]"
+INERTIA_BODY = MASS_AND_INERTIA
 
 
 @pytest.fixture
@@ -161,7 +149,8 @@ def _fifo(path: Path) -> Path:
 
 def _write_case(tmp_path: Path, body: str = INERTIA_BODY) -> Path:
     p = tmp_path / "case.toml"
-    p.write_text(CASE.format(body=body))
+    p.write_text(case_text(name="tiny", description="A small case for the isolation and limits tests.",
+                           horizon="duration = 0.02", body=body))
     return p
 
 

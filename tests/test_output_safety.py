@@ -34,6 +34,8 @@ from freebody.results.outdir import FAULT_ENV, FAULT_POINTS, LOCK, OWNED, PREVIO
 from freebody.run import expand
 from freebody.run.suite import run_specs
 
+from case_text import case_text  # noqa: E402
+
 TESTS = Path(__file__).resolve().parent
 pytestmark = pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
 
@@ -57,21 +59,6 @@ START_BUDGET_S = 60.0  # for a freebody process to start and finish its first ru
 EXIT_BUDGET_S = 30.0  # to stop after a signal
 WORKER_EXIT_BUDGET_S = 10.0
 
-CASE = """name = "{name}"
-description = "a spinning box"
-duration_steps = 3
-dt = {dt}
-[body]
-mass = 1.0
-inertia = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]
-[initial]
-position = [0.0, 0.0, 0.0]
-orientation = [1.0, 0.0, 0.0, 0.0]
-linear_velocity = [0.0, 0.0, 0.0]
-angular_velocity = [{wx}, 5.0, 0.0]
-[world]
-gravity = [0.0, 0.0, 0.0]
-"""
 
 
 # --- helpers ------------------------------------------------------------------------------------
@@ -428,7 +415,8 @@ def test_a_huge_line_of_engine_output_is_cut(monkeypatch):
 
 def _case_file(folder: Path, file: str, name: str = "spin", dt: str = "0.01", wx: float = 0.01) -> str:
     path = folder / file
-    path.write_text(CASE.format(name=name, dt=dt, wx=wx))
+    path.write_text(case_text(name=name, description="a spinning box", horizon="duration_steps = 3", dt=dt,
+                              wx=wx))
     return str(path)
 
 

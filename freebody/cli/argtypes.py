@@ -81,18 +81,11 @@ def writable_folder(value, option: str) -> Path:
 
     if value is None or not str(value):
         raise InputError(f"{option}: empty; give a folder")
+    from ..results.io import make_folder
+
     path = Path(value)
     where = f"{option} {printable(value)}"
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise InputError(f"{where}: exists and is not a folder") from None
-    except NotADirectoryError:
-        raise InputError(f"{where}: cannot create the folder: a part of its path is a file") from None
-    except OSError as e:
-        raise InputError(f"{where}: cannot create the folder: {e.strerror or e}") from None
-    if not path.is_dir():
-        raise InputError(f"{where}: exists and is not a folder")
+    make_folder(path, where)
     try:
         fd, probe = tempfile.mkstemp(prefix=".freebody-write-check.", dir=path)
     except OSError as e:

@@ -11,7 +11,7 @@ import stat
 from pathlib import Path
 
 from ..errors import InputError
-from .io import write_json_atomic
+from .io import file_kind, write_json_atomic
 
 
 def make_baseline(doc: dict, source: str) -> dict:
@@ -53,8 +53,5 @@ def _check_regular(to: Path) -> None:
     except OSError as e:
         raise InputError(f"--to {to}: cannot check it: {e.strerror or e}") from None
     if not stat.S_ISREG(mode):
-        kind = ("a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
-                else "a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
-                else "a special file")
-        raise InputError(f"--to {to}: is {kind}, not a regular file; freebody writes baselines to "
+        raise InputError(f"--to {to}: is {file_kind(mode)}, not a regular file; freebody writes baselines to "
                          f"regular files only (--force does not replace it)")

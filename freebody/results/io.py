@@ -56,13 +56,29 @@ class FileRefused(InputError):
         self.reason = reason
 
 
-def _file_kind(mode: int) -> str:
+def file_kind(mode: int) -> str:
+    """What a non-regular file is, from its ``st_mode``: "a folder", "a FIFO (named pipe)", ..."""
     for test, kind in ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
                        (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
                        (stat.S_ISSOCK, "a socket")):
         if test(mode):
             return kind
     return "a special file"
+
+
+def make_folder(path: Path, where: str) -> None:
+    """Create the folder ``path`` (and its parents) if needed; InputError naming ``where`` when it
+    exists as something else or cannot be created."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError(f"{where}: exists and is not a folder") from None
+    except NotADirectoryError:
+        raise InputError(f"{where}: cannot create the folder: a part of its path is a file") from None
+    except OSError as e:
+        raise InputError(f"{where}: cannot create the folder: {e.strerror or e}") from None
+    if not path.is_dir():
+        raise InputError(f"{where}: exists and is not a folder")
 
 
 def _mib(n: int) -> str:
@@ -83,7 +99,7 @@ def read_regular_file(path: str | Path, limit: int, what: str) -> bytes:
     try:
         mode = os.stat(path).st_mode
         if not stat.S_ISREG(mode):
-            raise FileRefused(what, f"not a regular file ({_file_kind(mode)})")
+            raise FileRefused(what, f"not a regular file ({file_kind(mode)})")
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
                      | getattr(os, "O_BINARY", 0))
     except FileNotFoundError:
@@ -93,7 +109,7 @@ def read_regular_file(path: str | Path, limit: int, what: str) -> bytes:
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):  # replaced between the two checks
-            raise FileRefused(what, f"not a regular file ({_file_kind(st.st_mode)})")
+            raise FileRefused(what, f"not a regular file ({file_kind(st.st_mode)})")
         if st.st_size > limit:
             raise FileRefused(what, f"too large: {_mib(st.st_size)}, more than the {_mib(limit)} "
                                     f"freebody reads from such a file")

@@ -48,7 +48,7 @@ import threading
 from pathlib import Path, PurePosixPath
 
 from ..errors import InputError
-from .io import is_temporary, write_json_atomic, write_text_atomic
+from .io import is_temporary, make_folder, write_json_atomic, write_text_atomic
 
 RESULTS = "results.json"
 PREVIOUS = "results.previous.json"
@@ -95,7 +95,7 @@ def output_lock(out_dir, option: str = "--out"):
     """
     out_dir = out_folder(out_dir)
     where = f"{option} {out_dir}" if option else str(out_dir)
-    _make_folder(out_dir, where)
+    make_folder(out_dir, where)
     key = os.path.realpath(out_dir / LOCK)
     with _held_guard:
         entry = _held.get(key)
@@ -117,17 +117,6 @@ def output_lock(out_dir, option: str = "--out"):
         with _held_guard:
             del _held[key]
         os.close(fd)  # releases the flock
-
-
-def _make_folder(out_dir: Path, where: str) -> None:
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise InputError(f"{where}: exists and is not a folder") from None
-    except OSError as e:
-        raise InputError(f"{where}: cannot create the folder: {e.strerror or e}") from None
-    if not out_dir.is_dir():
-        raise InputError(f"{where}: exists and is not a folder")
 
 
 def _lock(key: str, where: str, option: str) -> int:
