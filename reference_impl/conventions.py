@@ -191,7 +191,10 @@ class Trajectory:
 
     def thinned(self, every: int) -> "Trajectory":
         """Every ``every``-th sample, always keeping the last."""
-        idx = np.unique(np.r_[np.arange(0, len(self.t), every), len(self.t) - 1])
+        return self.take(np.unique(np.r_[np.arange(0, len(self.t), every), len(self.t) - 1]))
+
+    def take(self, idx: np.ndarray) -> "Trajectory":
+        """The samples at the indices ``idx`` (ascending ints, shape (K,)), copies."""
         ortho = None if self.orthonormality_error is None else self.orthonormality_error[idx]
         return Trajectory(self.t[idx], self.position[idx], self.quaternion_wxyz[idx],
                           self.linear_velocity[idx], self.angular_velocity[idx], ortho)

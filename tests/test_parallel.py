@@ -19,7 +19,8 @@ from freebody.input.casefile import load_case
 from freebody.cli import main
 from freebody.run.executor import plan
 from freebody.reference_impl.integrators import simulate as reference_simulate
-from freebody.results.document import load_trajectory
+from freebody.results.document import SAVED_SAMPLES, load_trajectory
+from freebody.reference_impl.rotations import geodesic_angle
 from freebody.run import SCHEME_CANDIDATES, expand
 from freebody.run.sharedcache import SHAREABLE_REFERENCES
 from freebody.run.suite import run_specs
@@ -103,8 +104,30 @@ def test_save_every_thins_the_file_but_not_the_metrics(tmp_path):
     assert docs[1]["runs"][0]["metrics"] == docs[7]["runs"][0]["metrics"]
     full, _ = load_trajectory(tmp_path / "1" / docs[1]["runs"][0]["trajectory"])
     thin, truth = load_trajectory(tmp_path / "7" / docs[7]["runs"][0]["trajectory"])
-    assert len(full) == 101 and len(thin) == len(truth) == 16  # samples 0, 7, ..., 98 and the last, 100
-    np.testing.assert_array_equal(thin.quaternion_wxyz, full.quaternion_wxyz[np.r_[0:101:7, 100]])
+    with np.load(tmp_path / "7" / docs[7]["runs"][0]["trajectory"]) as z:
+        index = z["sample_index"]
+    # samples 0, 7, ..., 98, the last (100), and those of the maximum errors
+    assert len(full) == 101 and len(thin) == len(truth) == len(index) < 101
+    assert set(range(0, 101, 7)) | {100} <= set(index.tolist())
+    np.testing.assert_array_equal(thin.quaternion_wxyz, full.quaternion_wxyz[index])
+    np.testing.assert_array_equal(thin.t, full.t[index])
+    # the file shows the orientation error the metrics report, at its sample
+    ori = geodesic_angle(truth.quaternion_wxyz, thin.quaternion_wxyz)
+    assert np.max(ori) == docs[7]["runs"][0]["metrics"]["orientation_error_max_rad"]
+
+
+def test_auto_save_keeps_about_saved_samples_and_every_maximum(tmp_path):
+    """The default (--save-every auto) bounds a long run's file; metrics still use every step."""
+    specs = _specs(["dzhanibekov"], ["reference"], ["euler-quat"], dt=0.001, duration=5.0)
+    docs = {k: run_specs(specs, tmp_path / str(k), ["reference"], progress=False, save_every=k)[0]
+            for k in (1, None)}
+    assert docs[1]["runs"][0]["metrics"] == docs[None]["runs"][0]["metrics"]
+    thin, truth = load_trajectory(tmp_path / "None" / docs[None]["runs"][0]["trajectory"])
+    full, _ = load_trajectory(tmp_path / "1" / docs[1]["runs"][0]["trajectory"])
+    assert len(full) == 5001 and SAVED_SAMPLES // 2 < len(thin) <= SAVED_SAMPLES + 12  # + the maxima
+    m = docs[None]["runs"][0]["metrics"]
+    assert np.max(geodesic_angle(truth.quaternion_wxyz, thin.quaternion_wxyz)) == m["orientation_error_max_rad"]
+    assert thin.t[-1] == full.t[-1]
 
 
 def test_reference_engine_runs_stand_in_for_the_identification_maps():
@@ -188,7 +211,10 @@ def test_dask_gives_the_local_results_and_isolates_a_crash(crasher, dask_schedul
     assert _comparable(local) == _comparable(remote)
     rel = remote["runs"][0]["trajectory"]
     (full, _), (thin, _) = (load_trajectory(tmp_path / d / rel) for d in ("local", "dask"))
-    np.testing.assert_array_equal(thin.position, full.thinned(2).position)
+    with np.load(tmp_path / "dask" / rel) as z:
+        index = z["sample_index"]
+    assert set(range(0, len(full), 2)) <= set(index.tolist())
+    np.testing.assert_array_equal(thin.position, full.position[index])
 
 
 def test_dask_unreachable_scheduler_is_bad_input(tmp_path, capsys, monkeypatch):

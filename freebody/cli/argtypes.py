@@ -66,8 +66,19 @@ positive_int = integer(1)
 nonnegative_int = integer(0)
 # A physical size, density or mass (freebody inertia): from INPUT_POSITIVE_MIN to INPUT_MAGNITUDE_MAX.
 quantity = number(tol.INPUT_POSITIVE_MIN)
-# --save-every: at most the most steps a run has (MAX_STEPS_PER_RUN).
-save_interval = integer(1, tol.MAX_STEPS_PER_RUN)
+# --save-every: 'auto' (None: about SAVED_SAMPLES samples a run) or at most the most steps a run
+# has (MAX_STEPS_PER_RUN).
+_save_stride = integer(1, tol.MAX_STEPS_PER_RUN)
+
+
+def save_interval(text: str) -> int | None:
+    """--save-every: ``auto`` (None) or an integer stride."""
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        return _save_stride(text)
+    except argparse.ArgumentTypeError as e:
+        raise argparse.ArgumentTypeError(f"{e} or 'auto'") from None
 timeout_seconds = number(0.0, strict=True, maximum=MAX_TIMEOUT_S)
 
 

@@ -47,8 +47,11 @@ def add_parser(sub) -> None:
                    help="run even when the estimated memory exceeds the memory available")
     p.add_argument("--timeout", type=_timeout_seconds, metavar="S",
                    help="per-run time limit in s: a run past it is killed and recorded failed")
-    p.add_argument("--save-every", type=_save_interval, default=1, metavar="K",
-                   help="keep every K-th sample in the trajectory files (metrics use every step)")
+    p.add_argument("--save-every", type=_save_interval, default=None, metavar="K|auto",
+                   help="keep every K-th sample in the trajectory files, plus the samples of each "
+                        "maximum error and of a divergence (default auto: at most 800 evenly spaced "
+                        "samples a run; "
+                        "1: every sample); metrics always use every step")
     p.add_argument("--executor", choices=("local", "dask"), default="local",
                    help="where runs execute: local worker processes (default) or a dask cluster")
     p.add_argument("--scheduler", metavar="ADDRESS",

@@ -47,9 +47,16 @@ def _figure(width_in: float, height_in: float):
     return Figure(figsize=(width_in, height_in), dpi=DPI)
 
 
+# An opaque figure is stored as a PNG of at most this many colours (a palette picked per image by
+# PIL's fast octree, no dithering): line plots use a few dozen colours and their anti-aliased
+# edges; measured on the default suite's 38 figures: 6.0 MB -> 2.0 MB of PNG (report.html 8.5 MB ->
+# 3.2 MB), 0.3 % of the pixels off by more than 16 of 255 in a channel, none by more than 48.
+PNG_COLOURS = 256
+
+
 def png_bytes(fig) -> bytes:
-    """The figure as PNG: the pixels ``fig.savefig(format="png")`` draws at DPI, stored as RGB when
-    the figure is opaque (a quarter smaller than RGBA and faster to encode), with no software
+    """The figure as PNG: the pixels ``fig.savefig(format="png")`` draws at DPI, stored with a
+    palette of PNG_COLOURS when the figure is opaque (a third of the RGB size), with no software
     metadata (so the bytes depend on the data only)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image
@@ -57,9 +64,11 @@ def png_bytes(fig) -> bytes:
     canvas = FigureCanvasAgg(fig)
     canvas.draw()
     rgba = np.asarray(canvas.buffer_rgba())
-    opaque = bool(np.all(rgba[..., 3] == 255))
-    image = Image.fromarray(np.ascontiguousarray(rgba[..., :3]) if opaque else rgba,
-                            "RGB" if opaque else "RGBA")
+    if bool(np.all(rgba[..., 3] == 255)):
+        image = Image.fromarray(np.ascontiguousarray(rgba[..., :3]), "RGB").quantize(
+            colors=PNG_COLOURS, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE)
+    else:
+        image = Image.fromarray(rgba, "RGBA")
     buf = io.BytesIO()
     image.save(buf, format="png", dpi=(DPI, DPI))  # the pixel density savefig records
     return buf.getvalue()

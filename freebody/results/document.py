@@ -8,7 +8,9 @@ results.json::
 Written with sorted keys; non-finite numbers become null (the run's status says why).  Readers
 ignore keys they do not know.  A trajectory file (npz) holds the run's arrays and its truth's:
 ``t (N,)``, ``position (N, 3)``, ``quaternion_wxyz (N, 4)``, ``linear_velocity (N, 3)``,
-``angular_velocity (N, 3)`` [, ``orthonormality_error (N,)``], and the same with a ``truth_`` prefix.
+``angular_velocity (N, 3)`` [, ``orthonormality_error (N,)``], and the same with a ``truth_`` prefix,
+at the saved samples (see :data:`SAVED_SAMPLES`); files written by this release on also hold
+``sample_index (N,)`` int64, the step k of each saved sample (t = k dt).
 A run's ``trajectory`` is its file's path relative to the folder of results.json:
 ``trajectories/<n>/<name>.npz``, one folder ``<n>`` per invocation (see :mod:`.outdir`), or
 ``trajectories/<name>.npz`` in folders written by earlier releases; readers simply join the two.
@@ -77,30 +79,78 @@ def trajectory_filename(run: dict) -> str:
     return f"{safe[:READABLE_NAME_CHARS]}__{digest}.npz"
 
 
-def thinned_for_saving(tr: Trajectory, truth: Trajectory | None,
-                       every: int = 1) -> tuple[Trajectory, Trajectory | None]:
-    """(run, truth) as a trajectory file stores them: the truth cut to the run's samples (a
-    diverged run stops early) without orthonormality, both thinned to every ``every``-th sample."""
-    if truth is not None:
-        truth = truth.head(len(tr)).without_orthonormality()
+# --save-every auto (the default): a run's trajectory file keeps at most SAVED_SAMPLES samples, every
+# k-th step with k = ceil(steps / SAVED_SAMPLES) (all of them for a run of fewer steps), plus the
+# samples listed by saved_indices.  The report's figures draw a panel about 450 pixels wide, so
+# 800 evenly spaced samples are nearly 2 per pixel column; with them the default suite's 735 runs
+# write 47 MB of trajectory files (1000: 62 MB; every step: 336 MB; docs/benchmarks.md).
+# Metrics always use every step; --save-every 1 keeps every sample.
+SAVED_SAMPLES = 800
+
+
+def auto_every(n_samples: int) -> int:
+    """The stride --save-every auto uses for a run of ``n_samples`` samples (steps + 1)."""
+    return max(1, -(-(int(n_samples) - 1) // SAVED_SAMPLES))
+
+
+def saved_indices(n: int, every: int, series=None, diverged_index: int | None = None,
+                  orthonormality: np.ndarray | None = None) -> np.ndarray:
+    """The sample indices (ascending, int64, shape (K,)) a trajectory file keeps of a run of ``n``
+    samples: every ``every``-th, the last, and when thinned (``every`` > 1) the sample of each
+    series' maximum (orientation, angular momentum, energy and position errors of
+    :class:`freebody.run.metrics.Series`, the orthonormality error; over the whole run and over
+    the samples before a divergence) and the two samples around a divergence, so that the figures
+    show every maximum the metrics report and where a run blew up."""
+    picks = [np.arange(0, n, every), [n - 1]]
     if every > 1:
-        tr = tr.thinned(every)
-        truth = truth.thinned(every) if truth is not None else None
-    return tr, truth
+        arrays = [] if series is None else [series.orientation_error, series.angular_momentum_error,
+                                             series.energy_error, series.position_error]
+        if orthonormality is not None:
+            arrays.append(orthonormality)
+        ends = [n] if diverged_index is None else [n, max(1, min(diverged_index, n))]
+        for a in arrays:
+            for end in ends:
+                head = np.asarray(a[:end], dtype=float)
+                finite = np.isfinite(head)
+                if finite.any():
+                    picks.append([int(np.argmax(np.where(finite, head, -np.inf)))])
+        if diverged_index is not None:
+            picks.append([max(0, min(diverged_index, n - 1) - 1), min(diverged_index, n - 1)])
+    return np.unique(np.concatenate([np.asarray(p, dtype=np.int64) for p in picks]))
+
+
+def samples_to_save(tr: Trajectory, truth: Trajectory | None, every: int | None = None, series=None,
+                    diverged_at: float | None = None) -> tuple[Trajectory, Trajectory | None, np.ndarray]:
+    """(run, truth, sample indices) as a trajectory file stores them: the truth cut to the run's
+    samples (a diverged run stops early) without orthonormality, both reduced to the samples of
+    :func:`saved_indices` (``every`` None: :func:`auto_every`)."""
+    n = len(tr)
+    if truth is not None:
+        truth = truth.head(n).without_orthonormality()
+    every = auto_every(n) if every is None else every
+    d = None if diverged_at is None else int(np.searchsorted(tr.t, diverged_at))
+    idx = saved_indices(n, every, series, d, tr.orthonormality_error) if n else np.zeros(0, np.int64)
+    if len(idx) < n:
+        tr = tr.take(idx)
+        truth = truth.take(idx) if truth is not None else None
+    return tr, truth, idx
+
+
+def write_trajectory(path: Path, tr: Trajectory, truth: Trajectory | None, index: np.ndarray) -> None:
+    """Write a run's saved samples (from :func:`samples_to_save`) to ``path`` atomically."""
+    arrays = {f: getattr(tr, f) for f in _FIELDS}
+    arrays["sample_index"] = np.asarray(index, dtype=np.int64)
+    if tr.orthonormality_error is not None:
+        arrays["orthonormality_error"] = tr.orthonormality_error
+    if truth is not None:
+        arrays.update({"truth_" + f: getattr(truth, f) for f in _FIELDS})
+    write_npz_atomic(Path(path), arrays)
 
 
 def save_trajectory(out_dir: Path, relname: str, tr: Trajectory, truth: Trajectory | None,
-                    every: int = 1) -> None:
-    """Save a run's arrays (thinned to every ``every``-th sample) and its truth's, atomically."""
-    path = Path(out_dir) / relname
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tr_s, truth_s = thinned_for_saving(tr, truth, every)
-    arrays = {f: getattr(tr_s, f) for f in _FIELDS}
-    if tr_s.orthonormality_error is not None:
-        arrays["orthonormality_error"] = tr_s.orthonormality_error
-    if truth_s is not None:
-        arrays.update({"truth_" + f: getattr(truth_s, f) for f in _FIELDS})
-    write_npz_atomic(path, arrays)
+                    every: int | None = 1, series=None, diverged_at: float | None = None) -> None:
+    """Save a run's samples (those of :func:`samples_to_save`) and its truth's, atomically."""
+    write_trajectory(Path(out_dir) / relname, *samples_to_save(tr, truth, every, series, diverged_at))
 
 
 def load_trajectory(path: Path) -> tuple[Trajectory, Trajectory | None]:

@@ -12,7 +12,7 @@ from typing import Callable
 
 from ..adapters.base import load_adapter
 from ..errors import InputError
-from ..results.document import results_document, save_trajectory, trajectory_filename
+from ..results.document import results_document, trajectory_filename, write_trajectory
 from ..results.outdir import OutputFolder, out_folder, output_lock
 from . import interrupts
 from .progress import ProgressDisplay
@@ -38,7 +38,7 @@ def default_jobs() -> int:
 
 
 def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
-              progress: bool = True, save_every: int = 1,
+              progress: bool = True, save_every: int | None = None,
               on_result: Callable[[RunOutput], None] | None = None, *, jobs: int = 1,
               timeout: float | None = None, executor: str = "local", scheduler: str | None = None,
               keep_arrays: bool = False, isolate: bool = True) -> tuple[dict, list[RunOutput]]:
@@ -50,7 +50,9 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
         debugging: an engine's segfault then ends this process); needs ``jobs=1``, no ``timeout``.
     timeout : per-run time limit, s; a run past it is killed and ``failed`` (needs a worker process).
     executor, scheduler : "local", or "dask" with the address of a dask.distributed scheduler.
-    save_every : keep every ``save_every``-th sample in the trajectory files (metrics use all).
+    save_every : keep every ``save_every``-th sample in the trajectory files, and the samples of
+        each maximum error and of a divergence (None: at most SAVED_SAMPLES evenly spaced, see
+        :func:`freebody.results.document.auto_every`; 1: every sample); metrics use every step.
     keep_arrays : give each RunOutput its trajectory, truth and series (else only ``result``).
 
     Returns (the results.json document, the RunOutputs in spec order); ``on_result`` is called
@@ -110,8 +112,9 @@ def check_options(jobs, timeout, save_every, executor: str, scheduler: str | Non
         raise InputError(f"--jobs: must be an integer >= 1, got {jobs!r}")
     if timeout is not None and not (isinstance(timeout, (int, float)) and timeout > 0 and timeout < float("inf")):
         raise InputError(f"--timeout: must be a finite number of seconds > 0, got {timeout!r}")
-    if not isinstance(save_every, int) or isinstance(save_every, bool) or save_every < 1:
-        raise InputError(f"--save-every: must be an integer >= 1, got {save_every!r}")
+    if save_every is not None and (not isinstance(save_every, int) or isinstance(save_every, bool)
+                                   or save_every < 1):
+        raise InputError(f"--save-every: must be 'auto' or an integer >= 1, got {save_every!r}")
     if executor not in EXECUTORS:
         raise InputError(f"--executor: must be one of {', '.join(EXECUTORS)}, got {executor!r}")
     if executor == "dask" and not scheduler:
@@ -153,8 +156,7 @@ class _Finished:
         if self.folder is not None:
             if "saved" in payload:
                 name = trajectory_filename(result.to_json())
-                tr, truth = payload["saved"]
-                save_trajectory(self.folder.trajectory_dir, name, tr, truth, every=1)  # thinned already
+                write_trajectory(self.folder.trajectory_dir / name, *payload["saved"])  # selected already
                 result = replace(result, trajectory=name)
             if result.trajectory:  # relative to the output folder, as results.json stores it
                 result = replace(result, trajectory=self.folder.relative(result.trajectory))

@@ -39,7 +39,7 @@ from .execute import execute
 
 from .records import RunOutput, RunSpec
 from .sharedcache import GroupTruthCache
-from ..results.document import save_trajectory, trajectory_filename
+from ..results.document import samples_to_save, trajectory_filename, write_trajectory
 
 # errno values of a write that failed for lack of room or a read-only file system: the environment's
 # error, which ends the invocation, not a run's
@@ -62,7 +62,8 @@ class RunTask:
     problem_key : a name of ``spec.problem`` that is stable across processes (e.g. ``"p3"``).
     spec : the run.
     save_dir : directory where the worker writes the trajectory file itself, or None.
-    save_every : keep every ``save_every``-th sample in the saved trajectory (metrics use all).
+    save_every : the stride of the saved samples (None: automatic), see
+        :func:`freebody.results.document.samples_to_save` (metrics use every step).
     ship_saved : return the thinned arrays to save (when the caller writes the file itself).
     keep_arrays : return the full trajectory, truth and error series.
     share : write the group's truths to the shared store (pointless for a group of one run).
@@ -72,18 +73,15 @@ class RunTask:
     problem_key: str
     spec: RunSpec
     save_dir: str | None = None
-    save_every: int = 1
+    save_every: int | None = None
     ship_saved: bool = False
     keep_arrays: bool = False
     share: bool = True
 
 
-def thin_for_saving(out: RunOutput, every: int):
-    """(trajectory, truth head) thinned exactly as :func:`freebody.results.document.save_trajectory` thins
-    them, so that saving these with ``every=1`` writes the same arrays."""
-    from ..results.document import thinned_for_saving
-
-    return thinned_for_saving(out.trajectory, out.truth, every)
+def samples_for_saving(out: RunOutput, every: int | None):
+    """(trajectory, truth, sample indices) of a finished run as its trajectory file keeps them."""
+    return samples_to_save(out.trajectory, out.truth, every, out.series, out.result.diverged_at_s)
 
 
 def finish(out: RunOutput, task: RunTask) -> dict:
@@ -96,14 +94,14 @@ def finish(out: RunOutput, task: RunTask) -> dict:
         if task.save_dir is not None:
             rel = trajectory_filename(result.to_json())
             try:
-                save_trajectory(Path(task.save_dir), rel, out.trajectory, out.truth, every=task.save_every)
+                write_trajectory(Path(task.save_dir) / rel, *samples_for_saving(out, task.save_every))
             except OSError as e:  # say which file (a write error has no file name)
                 if e.filename is None:
                     e.filename = str(Path(task.save_dir) / rel)
                 raise
             result = replace(result, trajectory=rel)
         elif task.ship_saved:
-            payload["saved"] = thin_for_saving(out, task.save_every)
+            payload["saved"] = samples_for_saving(out, task.save_every)
     if task.keep_arrays:
         payload["arrays"] = (out.trajectory, out.truth, out.series)
     payload["result"] = result
