@@ -10,6 +10,7 @@ import pytest
 
 from freebody.cli import main
 from freebody.results.compare import compare, default_tolerances, load_side, resolve_tolerances
+from freebody.results.document import SCHEMA_VERSION
 from freebody.testing import assert_no_regression
 from freebody.tolerances import COMPARE_DEFAULT_RTOL as DEFAULT_RTOL
 from freebody.tolerances import COMPARE_ORIENTATION_ATOL_RAD as ORIENTATION_ATOL_RAD
@@ -56,7 +57,7 @@ def test_baseline_refuses_to_overwrite_without_force(run_dir, baseline, capsys):
     assert main(["baseline", str(run_dir), "--to", str(baseline)]) == 2
     assert "--force" in capsys.readouterr().err and baseline.read_text() == "precious"
     assert main(["baseline", str(run_dir), "--to", str(baseline), "--force"]) == 0
-    assert json.loads(baseline.read_text())["schema_version"] == 1
+    assert json.loads(baseline.read_text())["schema_version"] == SCHEMA_VERSION
     assert not [p for p in baseline.parent.iterdir() if p.name.startswith(".")]  # no temporary left
 
 

@@ -11,19 +11,26 @@ def add_parser(sub) -> None:
     p.add_argument("dir", metavar="DIR", help="a run directory or a results.json")
     p.add_argument("--to", required=True, metavar="FILE", help="the baseline file to write (JSON)")
     p.add_argument("--force", action="store_true", help="replace FILE if it exists")
+    p.add_argument("--allow-no-ok-runs", action="store_true",
+                   help="store the baseline even when none of its runs is ok or diverged (every run "
+                        "failed or was skipped: such a baseline guards nothing)")
 
 
 def run(args) -> int:
     from pathlib import Path
 
     from ..errors import InputError
-    from ..results.baseline import store_baseline
+    from ..results.baseline import baseline_warnings, store_baseline
     from .argtypes import writable_folder
 
     if not args.to:
         raise InputError("--to: empty; give the baseline file to write (e.g. --to baseline.json)")
     writable_folder(Path(args.to).parent, f"--to {args.to}: its folder")  # can be written, before reading
-    base = store_baseline(args.dir, args.to, force=args.force)
+    import sys
+
+    base = store_baseline(args.dir, args.to, force=args.force, allow_no_ok_runs=args.allow_no_ok_runs)
     engines = ", ".join(f"{e} {v or 'not installed'}" for e, v in (base.get("engines") or {}).items())
     print(f"baseline: {args.to} ({len(base['runs'])} runs; engines: {engines or 'none'})")
+    for line in baseline_warnings(base):
+        print(f"warning: {line}", file=sys.stderr)
     return 0

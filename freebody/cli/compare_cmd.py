@@ -8,10 +8,11 @@ ORDER = 50
 
 def add_parser(sub) -> None:
     p = sub.add_parser("compare", help="compare results with a baseline (exit 1 on a regression)",
-                       description="Match runs by (case, engine, integrator, precision, dt) and print what "
-                                   "changed. Exit 0: within tolerance; 1: a regression (a metric worse "
-                                   "beyond tolerance, a run newly failed/diverged, a run missing); "
-                                   "2: unusable input.")
+                       description="Match runs by (case, engine, integrator, precision, dt), check they are "
+                                   "the same experiment, and print what changed. Exit 0: within tolerance; "
+                                   "1: a regression (a metric worse beyond tolerance, a run newly "
+                                   "failed/diverged or missing, another experiment under the same name, a "
+                                   "changed scheme or order); 2: unusable input.")
     p.add_argument("baseline", metavar="BASELINE", help="a baseline file, a results.json or a run directory")
     p.add_argument("current", metavar="CURRENT", help="a run directory or a results.json")
     p.add_argument("--rtol", type=_tolerance, metavar="X", help="relative tolerance for every metric")
@@ -19,14 +20,38 @@ def add_parser(sub) -> None:
                    help="absolute tolerance for every metric (in each metric's unit)")
     p.add_argument("--tolerances", metavar="FILE.toml", help="per-metric tolerances (see docs/ci-gate.md)")
     p.add_argument("--all", action="store_true", help="also list the metrics within tolerance")
+    p.add_argument("--strict", action="store_true",
+                   help="fail on any change beyond tolerance, improvements included")
+    p.add_argument("--engine", action="append", metavar="NAME",
+                   help="compare only this engine's runs (repeatable; both sides)")
+    p.add_argument("--case", action="append", metavar="NAME",
+                   help="compare only this case's runs (repeatable; both sides)")
+    p.add_argument("--json", action="store_true",
+                   help="print the verdict as JSON (schema in docs/ci-gate.md) instead of the table")
+    p.add_argument("--junit", metavar="FILE", help="also write the verdict as JUnit XML to FILE")
 
 
 def run(args) -> int:
+    from ..errors import InputError
     from ..results.compare import compare, load_side, resolve_tolerances
+    from ..results.io import write_text_atomic
+    from ..results.verdict import junit_xml, write_json
 
     tols = resolve_tolerances(args.tolerances, args.rtol, args.atol)
     base = load_side(args.baseline, "baseline")
     cur = load_side(args.current, "current")
-    result = compare(base, cur, tols, sources=(str(args.baseline), str(args.current)))
-    print(result.table(show_all=args.all))
+    result = compare(base, cur, tols, sources=(str(args.baseline), str(args.current)), strict=args.strict,
+                     engines=args.engine, cases=args.case)
+    for option, wanted, field in (("--engine", args.engine, "engine"), ("--case", args.case, "case")):
+        known = {r.get(field) for r in (base.get("runs") or []) + (cur.get("runs") or [])}
+        unknown = [w for w in wanted or () if w not in known]
+        if unknown:
+            raise InputError(f"{option} {unknown[0]}: no run of either side has this {field}; known: "
+                             f"{', '.join(sorted(str(k) for k in known))}")
+    if args.junit:
+        try:
+            write_text_atomic(args.junit, junit_xml(result).decode("utf-8"))
+        except OSError as e:
+            raise InputError(f"--junit {args.junit}: cannot write: {e.strerror or e}") from None
+    print(write_json(result) if args.json else result.table(show_all=args.all))
     return result.exit_code

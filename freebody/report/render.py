@@ -16,7 +16,8 @@ from ..results.io import write_json_atomic, write_text_atomic
 def augment(doc: dict, problems: dict | None = None) -> dict:
     """The results document with ``"convergence"`` (see :mod:`freebody.run.convergence`) and ``"cases"``
     (name -> description, truth, mass kg, inertia kg m^2 (3x3, COM, body frame), gravity m/s^2
-    (world), ...: what a report needs to recompute L and E without the case file)."""
+    (world), ...: what a report needs to recompute L and E without the case file; the case file's
+    ``dts`` and ``duration``, and ``ran``: [{dt, steps, duration_s}] of the runs that ran)."""
     from ..reference_impl.truth import truth_kind
 
     out = dict(doc)
@@ -24,6 +25,13 @@ def augment(doc: dict, problems: dict | None = None) -> dict:
     cases = dict(doc.get("cases") or {})
     for name, pb in (problems or {}).items():
         cases[name] = rd.case_record(pb, truth_kind(pb))
+    ran: dict[str, dict] = {}
+    for r in doc.get("runs") or []:  # what ran, whatever the case file's dts and duration say
+        if r.get("case") in cases and isinstance(r.get("steps"), int):
+            ran.setdefault(r["case"], {})[repr(float(r["dt"]))] = r["steps"]
+    for name, by_dt in ran.items():
+        cases[name] = {**cases[name], "ran": [{"dt": float(d), "steps": n, "duration_s": float(d) * n}
+                                              for d, n in sorted(by_dt.items(), key=lambda kv: float(kv[0]))]}
     if cases:
         out["cases"] = cases
     return out

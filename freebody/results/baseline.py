@@ -10,7 +10,9 @@ import os
 import stat
 from pathlib import Path
 
-from ..errors import InputError
+from collections import Counter
+
+from ..errors import InputError, printable
 from .io import file_kind, write_json_atomic
 
 
@@ -22,10 +24,12 @@ def make_baseline(doc: dict, source: str) -> dict:
     return out
 
 
-def store_baseline(source: str | Path, to: str | Path, force: bool = False) -> dict:
+def store_baseline(source: str | Path, to: str | Path, force: bool = False, allow_no_ok_runs: bool = False) -> dict:
     """Read the results of ``source`` (a run directory or a results.json), write its baseline to
     ``to`` atomically, and return it.  InputError when ``to`` exists (unless ``force``), when the
-    results are unusable, or when the run was interrupted (incomplete results make a bad baseline)."""
+    results are unusable, when the run was interrupted (incomplete results make a bad baseline), or
+    when no run is ok or diverged (every run failed or was skipped: such a baseline guards nothing;
+    unless ``allow_no_ok_runs``)."""
     from .compare import load_side
 
     to = Path(to)
@@ -38,9 +42,29 @@ def store_baseline(source: str | Path, to: str | Path, force: bool = False) -> d
     if doc.get("incomplete"):
         raise InputError(f"results {source}: incomplete (the run was interrupted); re-run it before "
                          f"storing a baseline")
+    runs = doc.get("runs") or []
+    measured = [r for r in runs if r.get("status") in ("ok", "diverged")]
+    if not measured and not allow_no_ok_runs:
+        by = Counter(str(r.get("status")) for r in runs)
+        first = next((r.get("message") for r in runs if r.get("message")), "")
+        raise InputError(f"results {source}: no run is ok or diverged ("
+                         + (", ".join(f"{n} {s}" for s, n in by.items()) or "no runs")
+                         + (f"; first message: {printable(str(first))[:160]}" if first else "")
+                         + "); such a baseline guards nothing. Fix the runs, or pass --allow-no-ok-runs")
     base = make_baseline(doc, str(source))
     write_json_atomic(to, base)
     return base
+
+
+def baseline_warnings(base: dict) -> list[str]:
+    """One line per kind of run in a baseline that guards less than an ok run: failed runs."""
+    failed = [r for r in base.get("runs") or [] if r.get("status") == "failed"]
+    if not failed:
+        return []
+    names = ", ".join(f"{r.get('case')} {r.get('engine')}/{r.get('integrator')} dt={r.get('dt')}" for r in failed[:3])
+    more = f" and {len(failed) - 3} more" if len(failed) > 3 else ""
+    return [f"{len(failed)} of {len(base.get('runs') or [])} runs failed ({printable(names)}{more}): compare "
+            f"only checks that they still fail; see their messages in the results"]
 
 
 def _check_regular(to: Path) -> None:

@@ -1,22 +1,34 @@
 """Compare a current run with a baseline: what changed, and whether anything regressed.
 
-Runs are matched by (case, engine, integrator, precision, dt).  A *regression* is:
+Runs are matched by (case, engine, integrator, precision, dt), and then must be the same
+*experiment* (:mod:`freebody.run.experiment`: the case's content, dt, steps, duration and the values
+freebody set in the engine).  A failing change (a *regression* in the gate's sense) is:
 
 - a run of the baseline missing from the current results;
+- a run that is ``not comparable``: another experiment under the same name (a shorter run, an
+  edited case file); its metrics are not compared at all (schema-1 baselines carry no experiment:
+  their runs are matched on steps, and the verdict says their content could not be checked);
 - a run whose status got worse (ok > diverged > failed; a run with a result that is now
   ``skipped`` no longer runs);
+- a ``scheme changed``: the reference map the run reproduces (``matches_reference``) is another
+  one, even when every error went down (MuJoCo implicitfast 3.1 -> 4.0); and an ``order changed``:
+  a fitted order of convergence moved by more than ``tol.COMPARE_ORDER_CHANGE``;
 - a metric (see :data:`COMPARED_METRICS`) worse beyond its tolerance,
   ``current > baseline + atol + rtol |baseline|``, or now undefined, in runs of the same status.
+  Orientation errors beyond ``tol.COMPARE_ORIENTATION_SATURATED_RAD`` on both sides are equal.
 
 Improvements beyond the tolerance, status changes for the better and runs new in the current
-results are listed but are not regressions.  Exit codes of ``freebody compare``: 0 nothing
-regressed, 1 something regressed, 2 unusable input (:class:`~freebody.errors.InputError`).
+results are listed but are not regressions, unless ``strict`` (then every change beyond tolerance
+fails, improvements included).  An intended change is accepted by storing a new baseline.
+Exit codes of ``freebody compare``: 0 nothing failed, 1 something failed, 2 unusable input
+(:class:`~freebody.errors.InputError`).  Text, JSON and JUnit output: :mod:`.verdict`.
 """
 from __future__ import annotations
 
 import difflib
 import tomllib
-from dataclasses import dataclass, field
+from collections import Counter
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .. import tolerances as tol
@@ -29,6 +41,7 @@ from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_ABS, ANGULAR_MOMENTUM_ERRO
                            ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL, ORIENTATION_ERROR_MAX,
                            ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, POSITION_ERROR_MAX,
                            ROTATION_ORTHONORMALITY_ERROR_MAX)
+from ..run.experiment import differences
 from ..run.records import Status
 
 STATUS_RANK = {Status.OK: 3, Status.DIVERGED: 2, Status.FAILED: 1}  # skipped: not measured (no rank)
@@ -48,6 +61,7 @@ METRIC_ATOL = {
     ROTATION_ORTHONORMALITY_ERROR_MAX: tol.COMPARE_ORTHONORMALITY_ATOL,
 }
 COMPARED_METRICS = tuple(METRIC_ATOL)  # wall time is never compared: it measures the machine
+ORIENTATION_METRICS = (ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_FINAL, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE)
 
 
 @dataclass(frozen=True)
@@ -64,14 +78,21 @@ class Tolerance:
         return baseline - self.atol - self.rtol * abs(baseline)
 
 
+FAILING = ("missing", "not comparable", "regressed", "scheme changed", "order changed")
+STRICT_FAILING = FAILING + ("improved", "changed")
+VERDICTS = FAILING + ("improved", "changed", "new", "same")  # the order changes are listed in
+
+
 @dataclass(frozen=True)
 class Change:
     """One line of the comparison.
 
-    key : (case, engine, integrator, precision, dt).
-    what : a metrics key, "status" or "run".
-    verdict : "regressed", "missing" (both regressions), "improved", "new", "changed" or "same".
+    key : (case, engine, integrator, precision, dt); dt is None for a change of a whole
+        (case, engine, integrator, precision) group (a fitted order).
+    what : a metrics key, "status", "run", "experiment", "scheme" or "order (<metric>)".
+    verdict : one of :data:`VERDICTS`.
     limit : the largest current value within tolerance (metrics only), else None.
+    note : what else a reader needs (the experiment's differing fields, an unchecked content).
     """
 
     key: tuple
@@ -81,15 +102,27 @@ class Change:
     current: object
     verdict: str
     limit: float | None = None
+    note: str = ""
 
     @property
     def regression(self) -> bool:
-        return self.verdict in ("regressed", "missing")
+        """Whether this change fails the gate by default (see :data:`FAILING`)."""
+        return self.verdict in FAILING
+
+    def fails(self, strict: bool = False) -> bool:
+        return self.verdict in (STRICT_FAILING if strict else FAILING)
 
 
 @dataclass(frozen=True)
 class Comparison:
-    """The outcome of :func:`compare`: every change, engine versions side by side, counts."""
+    """The outcome of :func:`compare`: every change, versions side by side, counts.
+
+    versions : (name, baseline, current) for freebody and each engine.
+    settings : (engine, setting, baseline default, current default): an engine default that freebody
+        overrides and that changed between the two sides (freebody sets it, so it does not change
+        the numbers; shown because an upgrade moved it).
+    unchecked : matched runs whose experiment could not be checked (a schema-1 side).
+    """
 
     changes: list[Change]
     versions: list[tuple[str, str, str]]
@@ -98,16 +131,24 @@ class Comparison:
     current_runs: int
     tolerances: dict[str, Tolerance] = field(default_factory=dict)
     sources: tuple[str, str] = ("baseline", "current")
+    strict: bool = False
+    settings: list[tuple[str, str, str, str]] = field(default_factory=list)
+    unchecked: int = 0
+    groups: list[dict] = field(default_factory=list)
+    schema_versions: tuple = (None, None)
 
     @property
     def regressions(self) -> list[Change]:
-        return [c for c in self.changes if c.regression]
+        """The changes that fail the gate (with ``strict``: improvements too)."""
+        return [c for c in self.changes if c.fails(self.strict)]
 
     @property
     def exit_code(self) -> int:
         return 1 if self.regressions else 0
 
     def table(self, show_all: bool = False) -> str:
+        from .verdict import format_comparison
+
         return format_comparison(self, show_all)
 
 
@@ -226,16 +267,150 @@ def _versions(base: dict, cur: dict) -> list[tuple[str, str, str]]:
         return v
 
     b, c = of(base), of(cur)
-    return [(e, b.get(e, "-"), c.get(e, "-")) for e in dict.fromkeys([*b, *c])]
+    rows = [("freebody", str(base.get("freebody_version") or "-"), str(current_version(cur)))]
+    return rows + [(e, b.get(e, "-"), c.get(e, "-")) for e in dict.fromkeys([*b, *c])]
+
+
+def current_version(doc: dict) -> str:
+    return str(doc.get("freebody_version") or "-")
+
+
+def _default_changes(b_runs: dict, c_runs: dict) -> list[tuple[str, str, str, str]]:
+    """(engine, setting, baseline default, current default) of the engine defaults freebody
+    overrides whose default differs between the two sides (first run of each engine that has it)."""
+    def defaults(runs):
+        out: dict = {}
+        for r in runs.values():
+            for k, v in (r.get("engine_settings") or {}).items():
+                if isinstance(v, dict) and "default" in v:
+                    out.setdefault((r["engine"], k), v["default"])
+        return out
+
+    b, c = defaults(b_runs), defaults(c_runs)
+    return [(e, k, str(b[(e, k)]), str(c[(e, k)])) for (e, k) in b if (e, k) in c and b[(e, k)] != c[(e, k)]]
+
+
+def scheme_of(run: dict) -> tuple[str, ...] | None:
+    """The reference maps a run reproduces (several: indistinguishable on its case), () when it
+    reproduces none, None when it was not identified (a reference run, a run not ok)."""
+    m = run.get("matches_reference")
+    if not isinstance(m, dict):
+        return None
+    tie = [x for x in (m.get("indistinguishable") or []) if isinstance(x, str)]
+    if tie:
+        return tuple(tie)
+    return (m["integrator"],) if isinstance(m.get("integrator"), str) else ()
+
+
+def scheme_text(scheme: tuple[str, ...] | None, run: dict | None = None) -> str:
+    if scheme is None:
+        return "-"
+    if not scheme:
+        closest = ((run or {}).get("matches_reference") or {}).get("closest")
+        return f"none (closest {closest})" if closest else "none"
+    return " = ".join(scheme)
+
+
+def _scheme_change(b: dict, c: dict) -> tuple[str, str] | None:
+    """(baseline scheme, current scheme) when the reproduced map changed, else None.  A tie that
+    still holds the other side's map is no change; so is a run that is not identified on a side."""
+    sb, sc = scheme_of(b), scheme_of(c)
+    if sb is None or sc is None or set(sb) & set(sc) or (not sb and not sc):
+        return None
+    return scheme_text(sb, b), scheme_text(sc, c)
+
+
+def _saturated(m: str, bv: float, cv: float) -> bool:
+    return (m in ORIENTATION_METRICS and bv > tol.COMPARE_ORIENTATION_SATURATED_RAD
+            and cv > tol.COMPARE_ORIENTATION_SATURATED_RAD)
+
+
+def _metric_changes(key, lab, b: dict, c: dict, tols: dict[str, Tolerance]) -> list[Change]:
+    out = []
+    bm, cm = b.get("metrics") or {}, c.get("metrics") or {}
+    for m, mt in tols.items():
+        bv = finite_or_none(bm.get(m))
+        cv = finite_or_none(cm.get(m))
+        if bv is None:
+            if cv is not None:
+                out.append(Change(key, lab, m, None, cv, "changed"))
+            continue
+        if cv is None:
+            out.append(Change(key, lab, m, bv, None, "regressed"))
+        elif _saturated(m, bv, cv):
+            out.append(Change(key, lab, m, bv, cv, "same", mt.limit(bv), "both saturated (orientation lost)"))
+        elif cv > mt.limit(bv):
+            out.append(Change(key, lab, m, bv, cv, "regressed", mt.limit(bv)))
+        elif cv < mt.floor(bv):
+            out.append(Change(key, lab, m, bv, cv, "improved", mt.limit(bv)))
+        else:
+            out.append(Change(key, lab, m, bv, cv, "same", mt.limit(bv)))
+    return out
+
+
+def _experiment_differences(b: dict, c: dict) -> tuple[list[str], bool]:
+    """(the differing fields, whether the content was checked) of two matched runs."""
+    be, ce = b.get("experiment"), c.get("experiment")
+    if isinstance(be, dict) and isinstance(ce, dict):
+        return differences(be, ce), True
+    bs, cs = b.get("steps"), c.get("steps")
+    diff = [f"steps {bs} -> {cs}"] if isinstance(bs, int) and isinstance(cs, int) and bs != cs else []
+    return diff, False
+
+
+def _status_change(key, lab, bs, cs) -> Change:
+    if bs == Status.SKIPPED:
+        verdict = "changed"
+    elif cs == Status.SKIPPED or STATUS_RANK.get(cs, 0) < STATUS_RANK.get(bs, 0):
+        verdict = "regressed"
+    else:
+        verdict = "improved"
+    return Change(key, lab, "status", bs, cs, verdict)
+
+
+def _order_changes(baseline: dict, current: dict, keep) -> list[Change]:
+    """Fitted orders (results.json ``convergence``) that moved by more than COMPARE_ORDER_CHANGE."""
+    def index(doc):
+        out = {}
+        for e in doc.get("convergence") or []:
+            if isinstance(e, dict) and finite_or_none(e.get("order")) is not None:
+                k = (e.get("case"), e.get("engine"), e.get("integrator"), e.get("precision") or "float64")
+                out.setdefault((k, e.get("metric")), float(e["order"]))
+        return out
+
+    b, c = index(baseline), index(current)
+    out = []
+    for (k, metric), bo in b.items():
+        co = c.get((k, metric))
+        if co is None or not keep({"case": k[0], "engine": k[1]}):
+            continue
+        if abs(co - bo) > tol.COMPARE_ORDER_CHANGE:
+            lab = f"{k[0]} {run_label({'engine': k[1], 'integrator': k[2], 'precision': k[3]})}"
+            out.append(Change((*k, None), lab, f"order ({metric})", round(bo, 3), round(co, 3), "order changed"))
+    return out
+
+
+def _filter(engines, cases):
+    engines, cases = set(engines or ()), set(cases or ())
+
+    def keep(run: dict) -> bool:
+        return (not engines or run.get("engine") in engines) and (not cases or run.get("case") in cases)
+    return keep
 
 
 def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | None = None,
-            sources: tuple[str, str] = ("baseline", "current")) -> Comparison:
-    """Compare two results documents (already loaded with :func:`load_side`)."""
+            sources: tuple[str, str] = ("baseline", "current"), *, strict: bool = False,
+            engines: list[str] | None = None, cases: list[str] | None = None) -> Comparison:
+    """Compare two results documents (already loaded with :func:`load_side`).
+
+    strict : every change beyond tolerance fails (improvements included).
+    engines, cases : compare only the runs of these engines / cases (on both sides)."""
     tols = tolerances or default_tolerances()
-    b_runs, c_runs = _index(baseline.get("runs") or []), _index(current.get("runs") or [])
+    keep = _filter(engines, cases)
+    b_runs = _index([r for r in baseline.get("runs") or [] if keep(r)])
+    c_runs = _index([r for r in current.get("runs") or [] if keep(r)])
     changes: list[Change] = []
-    matched = 0
+    matched = unchecked = 0
     for key, b in b_runs.items():
         lab = f"{key[0]} {run_label({**b, 'precision': key[3]})}"
         c = c_runs.get(key)
@@ -243,82 +418,71 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
             changes.append(Change(key, lab, "run", b.get("status"), None, "missing"))
             continue
         matched += 1
+        diff, checked = _experiment_differences(b, c)
+        unchecked += not checked
+        if diff:
+            note = "; ".join(diff) + ("" if checked else " (content not checked: schema-1 results)")
+            changes.append(Change(key, lab, "experiment", b.get("steps"), c.get("steps"), "not comparable",
+                                  note=note))
+            continue
         bs, cs = b.get("status"), c.get("status")
         if bs != cs:
-            if bs == Status.SKIPPED:
-                verdict = "changed"
-            elif cs == Status.SKIPPED or STATUS_RANK.get(cs, 0) < STATUS_RANK.get(bs, 0):
-                verdict = "regressed"
-            else:
-                verdict = "improved"
-            changes.append(Change(key, lab, "status", bs, cs, verdict))
+            changes.append(_status_change(key, lab, bs, cs))
             continue
-        bm, cm = b.get("metrics") or {}, c.get("metrics") or {}
-        for m, mt in tols.items():
-            bv = finite_or_none(bm.get(m))
-            cv = finite_or_none(cm.get(m))
-            if bv is None:
-                if cv is not None:
-                    changes.append(Change(key, lab, m, None, cv, "changed"))
-                continue
-            if cv is None:
-                changes.append(Change(key, lab, m, bv, None, "regressed"))
-            elif cv > mt.limit(bv):
-                changes.append(Change(key, lab, m, bv, cv, "regressed", mt.limit(bv)))
-            elif cv < mt.floor(bv):
-                changes.append(Change(key, lab, m, bv, cv, "improved", mt.limit(bv)))
-            else:
-                changes.append(Change(key, lab, m, bv, cv, "same", mt.limit(bv)))
+        changes.append(Change(key, lab, "status", bs, cs, "same"))  # every matched run has a line
+        moved = _scheme_change(b, c)
+        if moved:
+            changes.append(Change(key, lab, "scheme", moved[0], moved[1], "scheme changed"))
+        changes += _metric_changes(key, lab, b, c, tols)
     for key, c in c_runs.items():
         if key not in b_runs:
             changes.append(Change(key, f"{key[0]} {run_label({**c, 'precision': key[3]})}", "run", None,
                                   c.get("status"), "new"))
-    return Comparison(changes, _versions(baseline, current), matched, len(b_runs), len(c_runs), tols, sources)
+    changes += _order_changes(baseline, current, keep)
+    cmp = Comparison(changes, _versions(baseline, current), matched, len(b_runs), len(c_runs), tols, sources,
+                     strict, _default_changes(b_runs, c_runs), unchecked,
+                     schema_versions=(baseline.get("schema_version"), current.get("schema_version")))
+    return replace(cmp, groups=group_summaries(cmp, b_runs, c_runs))
 
 
-# --- text -----------------------------------------------------------------------------------------
-
-def _cell(x) -> str:
-    if x is None:
-        return "-"
-    if isinstance(x, float):
-        return format(x, ".3e")
-    return str(x)
-
-
-def _columns(header: tuple, rows: list[tuple]) -> list[str]:
-    rows = [tuple(printable(c) for c in row) for row in rows]  # names from files: no terminal escapes
-    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
-    lines = ["  ".join(f"{h:<{w}}" for h, w in zip(header, widths)).rstrip(),
-             "  ".join("-" * w for w in widths).rstrip()]
-    lines += ["  ".join(f"{str(c):<{w}}" for c, w in zip(row, widths)).rstrip() for row in rows]
-    return lines
-
-
-ORDER = {"missing": 0, "regressed": 1, "improved": 2, "changed": 3, "new": 4, "same": 5}
-
-
-def format_comparison(cmp: Comparison, show_all: bool = False) -> str:
-    """The text ``freebody compare`` prints: engine versions side by side, the changes (regressions
-    first), and a one-line verdict.  Numbers in %.3e."""
-    out = [f"baseline: {printable(cmp.sources[0])}", f"current:  {printable(cmp.sources[1])}", ""]
-    out += _columns(("engine", "baseline", "current", ""),
-                    [(e, b, c, "" if b == c else "<- changed") for e, b, c in cmp.versions])
-    out.append("")
-    shown = [c for c in cmp.changes if show_all or c.verdict != "same"]
-    shown.sort(key=lambda c: (ORDER[c.verdict], c.key[0], c.key[1], c.key[2], c.key[3], -c.key[4], c.what))
-    if shown:
-        out += _columns(("run", "dt", "what", "baseline", "current", "limit", "verdict"),
-                        [(c.label, f"{c.key[4]:g}", c.what, _cell(c.baseline), _cell(c.current),
-                          _cell(c.limit), c.verdict.upper() if c.regression else c.verdict) for c in shown])
-    else:
-        out.append("no change beyond the tolerances")
-    out.append("")
-    n = {v: sum(c.verdict == v for c in cmp.changes) for v in ORDER}
-    worse_runs = len({c.key for c in cmp.changes if c.verdict == "regressed"})
-    within = cmp.matched - len({c.key for c in cmp.changes if c.verdict != "same" and c.what != "run"})
-    verdict = "REGRESSION" if cmp.regressions else "OK"
-    out.append(f"{verdict}: {n['regressed']} worse ({worse_runs} runs), {n['missing']} missing, "
-               f"{n['improved']} improved, {n['changed']} changed, {n['new']} new; "
-               f"{cmp.matched} of {cmp.baseline_runs} baseline runs matched, {within} within tolerance")
-    return "\n".join(out)
+def group_summaries(cmp: Comparison, b_runs: dict, c_runs: dict) -> list[dict]:
+    """One entry per (engine, integrator, precision) with a change: its versions, its scheme on
+    each side (the most frequent one among its runs), and how many runs got worse, better, were
+    not comparable or changed scheme.  ``text`` is the line the verdict prints, e.g.
+    ``mujoco/implicitfast 3.1.6 -> 4.0.0: scheme semi-implicit-explicit-gyro -> semi-implicit-implicit-gyro; 3 runs worse, 2 better``."""
+    groups: dict[tuple, dict] = {}
+    for ch in cmp.changes:
+        if ch.verdict == "same":
+            continue
+        g = groups.setdefault(ch.key[1:4], {"worse": set(), "better": set(), "not comparable": set(),
+                                             "scheme changed": set(), "missing": set(), "new": set()})
+        bucket = {"regressed": "worse", "improved": "better", "order changed": "scheme changed"}.get(
+            ch.verdict, ch.verdict)
+        if bucket in g:
+            g[bucket].add(ch.key)
+    out = []
+    for (engine, integrator, precision), g in groups.items():
+        def side(runs):
+            rs = [r for k, r in runs.items() if k[1:4] == (engine, integrator, precision)]
+            versions = Counter(str(r.get("engine_version") or "-") for r in rs)
+            schemes = Counter(scheme_text(scheme_of(r), r) for r in rs if scheme_of(r) is not None)
+            return (versions.most_common(1)[0][0] if versions else "-",
+                    schemes.most_common(1)[0][0] if schemes else None)
+        (bv, bsch), (cv, csch) = side(b_runs), side(c_runs)
+        label = run_label({"engine": engine, "integrator": integrator, "precision": precision})
+        parts = []
+        if g["scheme changed"] and bsch != csch:
+            parts.append(f"scheme {bsch} -> {csch}")
+        elif g["scheme changed"]:
+            parts.append(f"scheme changed in {len(g['scheme changed'])} of its runs")
+        for name, word in (("worse", "worse"), ("better", "better"), ("not comparable", "not comparable"),
+                           ("missing", "missing"), ("new", "new")):
+            if g[name]:
+                n = len(g[name])
+                parts.append(f"{n} run{'' if n == 1 else 's'} {word}")
+        versions = bv if bv == cv else f"{bv} -> {cv}"
+        out.append({"engine": engine, "integrator": integrator, "precision": precision,
+                    "baseline_version": bv, "current_version": cv, "baseline_scheme": bsch,
+                    "current_scheme": csch, **{k.replace(" ", "_"): len(v) for k, v in g.items()},
+                    "text": f"{label} {versions}: " + "; ".join(parts)})
+    return out

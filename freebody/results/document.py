@@ -1,9 +1,14 @@
-"""results.json (schema version 1) and the per-run trajectory files, written atomically.
+"""results.json (schema version 2) and the per-run trajectory files, written atomically.
 
 results.json::
 
-    {"schema_version": 1, "freebody_version", "created", "platform", "engines": {name: version},
+    {"schema_version": 2, "freebody_version", "created", "platform", "engines": {name: version},
      "incomplete": false, "runs": [RunResult.to_json(), ...], ...}
+
+Schema 2 added each run's ``experiment`` (what was simulated: :mod:`freebody.run.experiment`)
+and, in ``cases``, the time steps and durations that ran.  Schema 1 documents (and baselines) are
+still read: their runs have no ``experiment``, and ``freebody compare`` then matches runs on their
+identity and steps and says that their content could not be checked.
 
 Written with sorted keys; non-finite numbers become null (the run's status says why).  Readers
 ignore keys they do not know.  A trajectory file (npz) holds the run's arrays and its truth's:
@@ -31,7 +36,8 @@ from ..numbers import finite_or_none
 from ..reference_impl.conventions import Trajectory
 from .io import read_json, write_npz_atomic
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+READABLE_SCHEMA_VERSIONS = (1, 2)  # results.json / baseline versions this freebody reads
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
 
 
@@ -204,7 +210,7 @@ _RUN_FIELD_TYPES = {
     "metrics": (dict, type(None)), "final_state": (dict, type(None)), "engine_settings": (dict, type(None)),
     "matches_reference": (dict, type(None)), "vs_engine": (dict, type(None)), "engine_output": (list, type(None)),
     "wall_time_s": (*_NUMBER, type(None)), "diverged_at_s": (*_NUMBER, type(None)),
-    "compile_time_s": (*_NUMBER, type(None)),
+    "compile_time_s": (*_NUMBER, type(None)), "experiment": (dict, type(None)),
 }
 _JSON_TYPE = {str: "a string", int: "an integer", float: "a number", dict: "an object", list: "an array",
               type(None): "null"}
@@ -223,9 +229,9 @@ def check_results(doc, where: str) -> dict:
     if not isinstance(doc, dict) or "schema_version" not in doc:
         raise InputError(f"{where}: schema_version: missing; not a freebody results or baseline file")
     v = doc["schema_version"]
-    if v != SCHEMA_VERSION:
-        raise InputError(f"{where}: schema_version: is {abbreviated(v)}, this freebody reads {SCHEMA_VERSION}; "
-                         f"{MIGRATE}")
+    if isinstance(v, bool) or v not in READABLE_SCHEMA_VERSIONS:
+        raise InputError(f"{where}: schema_version: is {abbreviated(v)}, this freebody reads "
+                         f"{' and '.join(map(str, READABLE_SCHEMA_VERSIONS))}; {MIGRATE}")
     engines = doc.get("engines")
     if engines is not None:
         if not isinstance(engines, dict):

@@ -57,7 +57,7 @@ def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bo
     identification and the comparison with a ported engine's original.  Used for runs stepped one
     by one (:func:`execute`) and for runs stepped as a batch (``freebody sweep --engine mjx``)."""
     pb = spec.problem
-    base = _identity(spec)
+    base = _identity(spec, sim.settings)
     trajectory, diverged_at, version, settings = sim.trajectory, sim.diverged_at, sim.version, sim.settings
     wall, compile_time = sim.wall_time_s, sim.compile_time_s
     status, message = (Status.OK, "") if diverged_at is None else (Status.DIVERGED, sim.reason)

@@ -22,6 +22,7 @@ from ..numbers import finite_or_none
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.problem import Problem
 from ..reference_impl.truth import truth_kind
+from .experiment import experiment
 from .metrics import Series
 
 
@@ -88,6 +89,8 @@ class RunResult:
     # s spent compiling the engine's step (JIT engines, e.g. mjx; 0 when cached; None: no JIT),
     # included in wall_time_s
     compile_time_s: float | None = None
+    # what was simulated (freebody.run.experiment): compare matches runs of the same experiment only
+    experiment: dict | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "status", Status(self.status))  # ValueError for a status not in the set
@@ -125,10 +128,12 @@ class Simulated:
     compile_time_s: float | None = None
 
 
-def _identity(spec: RunSpec) -> dict:
-    """The fields of a RunResult that say which run it is."""
+def _identity(spec: RunSpec, settings: dict | None = None) -> dict:
+    """The fields of a RunResult that say which run it is, and which experiment (``settings``:
+    the adapter's, None when the engine was not built)."""
     return dict(case=spec.problem.name, engine=spec.engine, integrator=spec.integrator,
-                precision=spec.precision, dt=spec.dt, steps=spec.steps, truth=truth_kind(spec.problem))
+                precision=spec.precision, dt=spec.dt, steps=spec.steps, truth=truth_kind(spec.problem),
+                experiment=experiment(spec.problem, spec.dt, spec.steps, settings))
 
 
 def _clean(metrics: dict) -> dict:

@@ -110,14 +110,10 @@ def finish(out: RunOutput, task: RunTask) -> dict:
 
 def failed_payload(spec: RunSpec, message: str, wall_time_s: float) -> dict:
     """The payload of a run that ended without a result of its own (crash, time limit)."""
-    from ..reference_impl.truth import truth_kind
-    from .records import RunResult, Status
+    from .records import RunResult, Status, _identity
 
-    pb = spec.problem
-    result = RunResult(case=pb.name, engine=spec.engine, integrator=spec.integrator,
-                       precision=spec.precision, dt=spec.dt, steps=spec.steps, status=Status.FAILED,
-                       message=message, truth=truth_kind(pb), metrics={}, final_state=None,
-                       wall_time_s=wall_time_s)
+    result = RunResult(**_identity(spec), status=Status.FAILED, message=message, metrics={},
+                       final_state=None, wall_time_s=wall_time_s)
     return {"result": result}
 
 
