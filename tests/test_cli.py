@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from freebody.results.document import SCHEMA_VERSION
 from freebody.adapters.base import REFERENCE_ENGINE, registry
 from freebody.cli import main
 
@@ -143,7 +144,7 @@ def test_run_writes_results_json_and_trajectories(tmp_path, capsys):
     assert code == 0
     text = (out / "results.json").read_text()
     doc = json.loads(text)
-    assert doc["schema_version"] == 1
+    assert doc["schema_version"] == SCHEMA_VERSION == 2
     assert {"freebody_version", "created", "platform", "engines", "runs"} <= set(doc)
     assert list(doc) == sorted(doc)  # sorted keys
     assert len(doc["runs"]) == 2 * 7
