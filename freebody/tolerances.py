@@ -55,9 +55,7 @@ MESH_COORDINATE_MAX = 1e60
 # stored (numpy refuses the arrays: "Maximum allowed dimension exceeded").
 MAX_STEPS_PER_RUN = 10**9
 
-# --- scheme identification ----------------------------------------------------------------------
-SCHEME_MATCH_RAD = 1e-6  # an engine "reproduces" a reference map if its orientation stays within
-                         # 1e-6 rad of it: round-off differences between float64 codes stay far below
+# --- scheme identification: see SCHEME_ROUNDOFF_FACTOR below (a round-off level per case) --------
 
 # --- observed order of convergence (run/convergence.py) -----------------------------------------
 # A point is left out of the fit outside (floor, saturation): below the floor its error is the
@@ -176,10 +174,11 @@ TOLERANCES_FILE_MAX_BYTES = 1 * MIB
 # refused (exit 2) unless ``--force-large``; one whose estimated time exceeds LONG_RUN_WARNING_S is
 # run with a warning.  The constants below were measured on this project's 2-core test machine with
 # tracemalloc (memory) and wall clocks (time), and rounded up.
-# A run's arrays in its worker: its trajectory, its truth, up to three reference maps (scheme
-# identification), the error series and the copies made while saving, 14 float64 per step each.
-# Measured peaks: 490 (reference rk4) to 730 (mujoco rk4, identified against three maps) bytes per
-# step; 9 trajectories' worth, 1008 bytes per step, covers them.
+# A run's arrays in its worker: its trajectory, its truth (14 float64 per step each), the seven
+# reference maps' orientations and round-off spreads (scheme identification, 5 float64 per step
+# each), the error series and the copies made while saving.  Measured peaks: 480 (reference rk4)
+# to 842 (mujoco, identified against seven maps) bytes per step; 9 trajectories' worth, 1008 bytes
+# per step, covers them.
 RUN_BYTES_PER_STEP = 9 * 14 * 8
 # What the freebody process keeps per run (the spec, the result, results.json being written):
 # measured 12.4 KB per run (2000 runs of 2 steps) at the peak.
@@ -199,3 +198,41 @@ INERTIA_BYTES_PER_CELL = {"voxels": 112, "particles": 192}
 # The mesh inside test works in vectorised blocks of ~100 MB (reference_impl/approx.py): measured
 # up to ~150 MB beyond the per-cell part.
 INERTIA_MESH_FIXED_BYTES = 256 * MIB
+
+# --- honest scheme identification (run/judge.identify) and divergence of a matrix's R ------------
+# A reference map M reproduces an engine run when, at every sample t_k, the run's orientation is
+# within M's round-off level on the case of M's own:
+#     angle(q_run(t_k), q_M(t_k)) <= max(SCHEME_ROUNDOFF_FACTOR * max_{j<=k} s_M(t_j), SCHEME_ROUNDOFF_FLOOR_RAD)
+# s_M is how the case amplifies round-off: the largest orientation difference between M's run and
+# M's runs from three starts one ulp away (in the run's precision: every component of the initial
+# q, w, x, v and of I_body moved by one ulp of its vector's largest entry, q renormalised, dt moved
+# by one ulp; three sign patterns, since at a given time a flip amplifies some directions far more
+# than others).  A steady spin keeps it near 1e-15; a flip (dzhanibekov) grows it to 5e-10 over
+# 10 s and to 0.4 rad over 1e6 steps.  Compared sample by sample (the spread's running maximum), so
+# no map matches a chaotic run merely because the orientation is lost at its end.  Maps reproducing
+# a run that are within their levels of each other are indistinguishable on the case: a tie (a
+# sphere, a spin about a principal axis).
+# The factor: another float code of the same map rounds differently at every step, not once at the
+# start.  Measured on the default suite (MuJoCo 4.0.0, MJX 3.17, DART 6.20, PyBullet 3.2.7), in units
+# of s_M: the numpy loops of each reference map against its compiled code <= 8.4; the engines'
+# float64 integrators against their maps <= 26 (MuJoCo), 30 (MJX), 47 (DART), 17 (PyBullet
+# multibody), 15-340 (PyBullet maximal coordinates, growing with the horizon); MuJoCo Euler on
+# dzhanibekov for 1e6 steps at dt = 1e-3 2.4 (0.53 rad apart).  A different map differs by its
+# truncation error: MuJoCo 4.0's fourth-order RK4 from the reference rk4 at dt = 1e-3, 159 to 2.9e4
+# (40 on world_torque, where their O(dt^4) difference is below round-off: reproduced), MJX's
+# second-order RK4 >= 3.6e6.  100 sits between the two (2x from each side): PyBullet's maximal
+# coordinates are reproduced on the shorter horizons only.
+SCHEME_ROUNDOFF_FACTOR = 100.0
+# Below this nothing is distinguishable whatever the case: a few dozen ulps of a unit quaternion,
+# what two float64 codes differ by in forming the same rotation (a conversion, a normalisation).
+SCHEME_ROUNDOFF_FLOOR_RAD = 1e-14
+# A rotation matrix integrated without correction (reference euler-matrix) is diverged once
+# ||R^T R - 1||_F exceeds this.  Explicit Euler stretches R perpendicular to the spin (singular
+# values sqrt(1 + h^2 |w|^2) per step); at 1 the stretched axes' squared lengths are ~1.7 (lengths
+# +30%, volumes x1.7), so the inertia R I_b R^T and the angular velocity R I_b^-1 R^T L the scheme
+# computes through R are off by a factor of order 1: R is no rotation in any useful sense.  Below
+# it the drift is the scheme's own error, which the teaching runs show.  Default suite: the ok
+# euler-matrix runs drift to 0.004-0.92; flat_plate, projectile, stable_minor_axis and
+# symmetric_top at dt = 0.01 reach 1.2-6.5 and t_handle at 1e-3 2.0, high_spin_dt_1ms 6.5e9,
+# high_spin_dt_10ms 3e102 (after one step: 3.2).
+DIVERGENCE_ORTHONORMALITY_MAX = 1.0

@@ -150,7 +150,10 @@ def test_run_writes_results_json_and_trajectories(tmp_path, capsys):
     assert len(doc["runs"]) == 2 * 7
     for run in doc["runs"]:
         assert RUN_KEYS <= set(run)
-        assert run["status"] == "ok", run["message"]
+        if run["integrator"] == "euler-matrix" and run["case"] == "projectile":  # R stops being a rotation
+            assert run["status"] == "diverged" and "R is no rotation" in run["message"]
+        else:
+            assert run["status"] == "ok", run["message"]
         assert METRIC_KEYS <= set(run["metrics"])
         assert (out / run["trajectory"]).is_file()
     quiz = [r for r in doc["runs"] if r["case"] == "quiz"]

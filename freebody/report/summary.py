@@ -20,6 +20,13 @@ def run_label(run: dict) -> str:
     return label
 
 
+def reproduced_text(match: dict) -> str:
+    """What a ``matches_reference`` dict says the run reproduces: 'tie: a = b = c' when two or more
+    maps are indistinguishable on the case, else the map's name ('' when none reproduces it)."""
+    tie = [x for x in (match.get("indistinguishable") or []) if isinstance(x, str)]
+    return f"tie: {' = '.join(tie)}" if len(tie) >= 2 else (match.get("integrator") or "")
+
+
 def summary_table(runs: list[dict]) -> str:
     header = ("case", "engine/integrator", "dt", "status", "orient max", "L max rel", "E max rel",
               "pos max m", "reproduces")
@@ -28,7 +35,7 @@ def summary_table(runs: list[dict]) -> str:
         m = r.get("metrics") or {}
         match = r.get("matches_reference")
         if match:
-            shown = match.get("integrator") or f"none (closest {match.get('closest')})"
+            shown = reproduced_text(match) or f"none (closest {match.get('closest')})"
             repro = f"{shown} {fmt(match.get('max_orientation_diff_rad'), '.1e')}"
         else:
             repro = ""

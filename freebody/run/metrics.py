@@ -114,8 +114,20 @@ def divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[flo
     """(time, reason) of the first sample that is non-finite or beyond the case's bounds, or None.
 
     Bounds: kinetic energy > DIVERGENCE_ENERGY_FACTOR x the truth's max KE, |w| or |v| beyond
-    their factor x the truth's max (see :mod:`freebody.tolerances`).
+    their factor x the truth's max, and for an integrated rotation matrix ||R^T R - 1||_F beyond
+    DIVERGENCE_ORTHONORMALITY_MAX (see :mod:`freebody.tolerances`): the earlier of that and the others.
     """
+    found = _state_divergence(problem, tr, truth)
+    ortho = None if tr.orthonormality_error is None else _first(
+        tr.orthonormality_error > tol.DIVERGENCE_ORTHONORMALITY_MAX)
+    if ortho is not None and (found is None or tr.t[ortho] < found[0]):
+        return (float(tr.t[ortho]), f"R is no rotation: ||R^T R - 1||_F beyond "
+                                    f"{tol.DIVERGENCE_ORTHONORMALITY_MAX:g}")
+    return found
+
+
+def _state_divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[float, str] | None:
+    """The state's part of :func:`divergence`: non-finite samples first, then the bounds."""
     n = len(tr)
     truth = truth.head(n)
     arrays = (tr.position, tr.quaternion_wxyz, tr.linear_velocity, tr.angular_velocity)

@@ -1,17 +1,20 @@
 """Truth and reference trajectories computed once per (case, dt, steps) and shared between runs.
 
 A run needs its case's truth at its time steps; an engine run also needs the reference maps it is
-compared with (scheme identification: :data:`freebody.run.judge.SCHEME_CANDIDATES`, plus rk4).  Both
-cost far more than most engine runs, so :class:`GroupTruthCache`
+compared with (scheme identification: :data:`freebody.run.judge.SCHEME_CANDIDATES`, every reference
+integrator) and each map's round-off spread (the same map from a start one ulp away,
+:func:`freebody.run.judge.roundoff_spread`).  They cost more than most engine runs, so
+:class:`GroupTruthCache`
 
 - keeps them in memory for one group (problem, dt, steps) at a time, so memory stays bounded by
   the largest group, not the whole suite;
 - takes a reference engine run's own trajectory as the reference map of the same name: the
   reference adapter returns exactly :func:`freebody.reference_impl.integrators.simulate` (a test
-  checks it bit for bit), so identification need not integrate it a second time;
+  checks it bit for bit), so identification need not integrate it a second time; of a map, only
+  its orientations stay in memory (all that identification compares);
 - optionally shares them between worker processes through a directory (``store``): one ``.npz``
-  file per trajectory, written atomically, so a worker that reads one reads exactly what another
-  computed.
+  file per trajectory or spread, written atomically, so a worker that reads one reads exactly what
+  another computed.
 
 The numbers are the same whichever process computed them: results are identical to a serial run.
 """
@@ -27,7 +30,7 @@ from .judge import SCHEME_CANDIDATES, TruthCache
 from .records import RunOutput, RunSpec, Status
 
 # reference maps a run of the reference engine can stand in for (identify() compares with these)
-SHAREABLE_REFERENCES = (*SCHEME_CANDIDATES, "rk4")
+SHAREABLE_REFERENCES = SCHEME_CANDIDATES
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
 
 
@@ -48,6 +51,22 @@ def _load(path: Path) -> Trajectory | None:
         with np.load(path) as z:
             ortho = z["orthonormality_error"] if "orthonormality_error" in z else None
             return Trajectory(*(z[f] for f in _FIELDS), orthonormality_error=ortho)
+    except (OSError, ValueError, KeyError):  # unreadable: compute it again
+        return None
+
+
+def _load_quaternions(path: Path) -> np.ndarray | None:
+    try:
+        with np.load(path) as z:
+            return z["quaternion_wxyz"]
+    except (OSError, ValueError, KeyError):  # unreadable: compute it again
+        return None
+
+
+def _load_array(path: Path) -> np.ndarray | None:
+    try:
+        with np.load(path) as z:
+            return z["spread"]
     except (OSError, ValueError, KeyError):  # unreadable: compute it again
         return None
 
@@ -85,17 +104,50 @@ class GroupTruthCache(TruthCache):
         return self._lookup(problem, dt, steps, integrator,
                             lambda: super(GroupTruthCache, self).reference(problem, integrator, dt, steps))
 
+    def orientation(self, problem, integrator: str, dt: float, steps: int) -> np.ndarray:
+        """The map's q (steps + 1, 4) only: from an offered reference run, the store or computed
+        (then its whole trajectory goes to the store, for the other workers)."""
+        full = (id(problem), float(dt), int(steps), integrator)
+        if full in self._memo:  # the map's whole trajectory, computed by reference()
+            return self._memo[full].quaternion_wxyz
+        key = full[:3] + (f"{integrator}.q",)
+        if key not in self._memo:
+            path = self._path(problem, dt, steps, integrator)
+            q = _load_quaternions(path) if path is not None and path.exists() else None
+            if q is None:
+                tr = self._simulate_map(problem, integrator, dt, steps)
+                if path is not None:
+                    _save(path, tr)
+                q = tr.quaternion_wxyz
+            self._memo[key] = q
+        return self._memo[key]
+
+    def roundoff(self, problem, integrator: str, dt: float, steps: int, precision: str = "float64") -> np.ndarray:
+        tag = f"{integrator}.roundoff-{precision}"
+        key = (id(problem), float(dt), int(steps), tag)
+        if key in self._memo:
+            return self._memo[key]
+        path = self._path(problem, dt, steps, tag)
+        spread = _load_array(path) if path is not None and path.exists() else None
+        if spread is None:
+            spread = super().roundoff(problem, integrator, dt, steps, precision)
+            if path is not None:
+                write_npz_atomic(path, {"spread": spread}, compressed=False)
+        self._memo[key] = spread
+        return spread
+
     def offer(self, spec: RunSpec, out: RunOutput) -> None:
-        """Keep a reference engine run's trajectory as the reference map of the same name."""
+        """Keep a reference engine run's orientations as the reference map of the same name (and
+        its trajectory in the store)."""
         tr = out.trajectory
         if (not spec.is_reference or spec.precision != "float64"
                 or spec.integrator not in SHAREABLE_REFERENCES or tr is None
                 or len(tr) != spec.steps + 1 or out.result.status not in (Status.OK, Status.DIVERGED)):
             return
-        key = (id(spec.problem), float(spec.dt), int(spec.steps), spec.integrator)
+        key = (id(spec.problem), float(spec.dt), int(spec.steps), f"{spec.integrator}.q")
         if key in self._memo:
             return
-        self._memo[key] = tr
+        self._memo[key] = tr.quaternion_wxyz  # what identification compares: not the whole run
         path = self._path(spec.problem, spec.dt, spec.steps, spec.integrator)
         if path is not None and not path.exists():
             _save(path, tr)
