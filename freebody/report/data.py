@@ -18,7 +18,7 @@ from ..reference_impl.problem import Body
 from ..reference_impl.rotations import geodesic_angle
 from ..run.metrics import ORIENTATION_ERROR_MAX
 from ..run.records import STATUSES, Status
-from .summary import run_label
+from .summary import reproduced_text, run_label
 
 STATUS_ORDER = (Status.FAILED, Status.DIVERGED, Status.SKIPPED, Status.OK)  # worst first
 
@@ -58,7 +58,7 @@ def reproduces(run: dict) -> str:
     if not isinstance(m, dict):
         return ""
     if m.get("integrator"):
-        return f"{m['integrator']} ({num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+        return f"{reproduced_text(m)} ({num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
     if m.get("closest"):
         return f"none (closest {m['closest']}, {num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
     return "none"
@@ -294,7 +294,7 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, int, float | 
         m = r.get("matches_reference")
         if not isinstance(m, dict):
             continue
-        what = m.get("integrator") or (f"none (closest {m['closest']})" if m.get("closest") else "none")
+        what = reproduced_text(m) or (f"none (closest {m['closest']})" if m.get("closest") else "none")
         slot = acc.setdefault((label(r), what), [0, None])
         slot[0] += 1
         d = finite_or_none(m.get("max_orientation_diff_rad"))
@@ -333,6 +333,90 @@ def engine_versions(doc: dict) -> list[tuple[str, str, int]]:
         versions.setdefault(r["engine"], r.get("engine_version"))
     return [(e, str(v) if v else "not installed", sum(r["engine"] == e for r in runs))
             for e, v in versions.items()]
+
+
+# --- observed order of convergence per engine run (the front page) ---------------------------------
+
+ORDER_FIT_COLUMN = "worst fit rms (decades)"
+ORDER_EXPECTED_COLUMN = "expected p"
+
+
+def _order_cell(entry: dict | None) -> str:
+    """One fitted order as the table shows it: 'p' (2 decimals), 'sat.' (saturated), '-' (none)."""
+    if entry is None:
+        return "-"
+    p = finite_or_none(entry.get("order"))
+    return format(p, ".2f") if p is not None else ("sat." if entry.get("saturated") else "-")
+
+
+def expected_order(runs: list[dict]) -> str:
+    """The formal order of the scheme that these runs of one engine run follow, '' when unknown.
+
+    A reference integrator declares its order (``reference_impl.integrators.INTEGRATORS``); an
+    engine run has the order of the reference map that every one of its ok runs reproduces
+    (``matches_reference``; the maps of a tie must share one order), shown with the map's name.
+    A run that reproduces no map leaves the order unknown: there is no claim to check.
+    """
+    from ..reference_impl.integrators import INTEGRATORS
+
+    if not runs:
+        return ""
+    if runs[0].get("engine") == REFERENCE_ENGINE:
+        scheme = INTEGRATORS.get(runs[0].get("integrator"))
+        return str(scheme.order) if scheme is not None else ""
+    maps: set[str] = set()
+    for r in runs:
+        if r.get("status") != Status.OK:
+            continue
+        m = r.get("matches_reference")
+        if not isinstance(m, dict):
+            return ""
+        tie = [x for x in (m.get("indistinguishable") or []) if isinstance(x, str)]
+        found = tie if len(tie) >= 2 else ([m["integrator"]] if m.get("integrator") else [])
+        if not found or any(x not in INTEGRATORS for x in found):
+            return ""
+        maps.update(found)
+    orders = {INTEGRATORS[x].order for x in maps}
+    if len(orders) != 1:
+        return ""
+    return f"{orders.pop()} ({' = '.join(sorted(maps))})"
+
+
+def observed_orders(convergence: list[dict], runs: list[dict]) -> tuple[list[str], list[list[str]]]:
+    """(columns, rows) of the front page's "Observed order" table: one row per engine run (engine,
+    integrator, precision) that ran a case at 3 or more time steps; per such case the fitted order
+    of the orientation error and of the energy error ("p_orientation / p_energy", see
+    :func:`_order_cell`); the largest ``fit_rms_decades`` of those fits; and
+    :func:`expected_order` over the engine run's runs of those cases.  ([], []) without fits."""
+    from ..run.metrics import ENERGY_ERROR_MAX_REL
+
+    fits: dict[tuple[str, str], dict[str, dict]] = {}
+    for e in convergence:
+        if isinstance(e, dict) and e.get("case") is not None:
+            fits.setdefault((label(e), e["case"]), {})[e.get("metric")] = e
+    if not fits:
+        return [], []
+    cases = list(dict.fromkeys(c for _, c in fits))
+    labs = [lab for lab in labels(runs) if any((lab, c) in fits for c in cases)]
+    labs += [lab for lab in dict.fromkeys(lab for lab, _ in fits) if lab not in labs]
+    rows = []
+    for lab in labs:
+        row, worst = [lab], None
+        for c in cases:
+            by_metric = fits.get((lab, c))
+            if by_metric is None:
+                row.append("")
+                continue
+            o, en = by_metric.get(ORIENTATION_ERROR_MAX), by_metric.get(ENERGY_ERROR_MAX_REL)
+            row.append(f"{_order_cell(o)} / {_order_cell(en)}")
+            for e in (o, en):
+                rms = finite_or_none((e or {}).get("fit_rms_decades"))
+                if rms is not None:
+                    worst = rms if worst is None else max(worst, rms)
+        row.append(num(worst, ".3f"))
+        row.append(expected_order([r for r in runs if label(r) == lab and r.get("case") in cases]) or "-")
+        rows.append(row)
+    return ["engine run", *cases, ORDER_FIT_COLUMN, ORDER_EXPECTED_COLUMN], rows
 
 
 # --- error series of the per-case figures ---------------------------------------------------------

@@ -28,7 +28,8 @@ nav a { margin-right: 0.8em; display: inline-block; } details summary { cursor: 
 """
 NUMERIC = {"dt (s)", "orientation max (rad)", "orientation final (rad)", "L max (rel)", "E max (rel)",
            "position max (m)", "wall s / sim s", "runs", "max difference (rad)", "order p",
-           "orientation (rad)", "L (rel)", "E (rel)"}
+           "orientation (rad)", "L (rel)", "E (rel)", md.ORTHONORMALITY_COLUMN, "fit rms (decades)",
+           rd.ORDER_FIT_COLUMN}
 FOLD_ROWS = 16  # longer tables are folded in a <details> element
 
 
@@ -71,7 +72,7 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
     runs = doc.get("runs") or []
     cases = rd.by_case(runs)
     p = _head_html(doc, runs, cases, source)
-    p += _overview_html(doc, runs, figures)
+    p += _overview_html(doc, runs, figures, convergence)
     for case, case_runs in cases.items():
         case_pairs = (pairs or {}).get(case)
         p += _case_html(case, case_runs, physics.get(case), convergence, case_pairs, figures,
@@ -98,7 +99,7 @@ def _head_html(doc: dict, runs: list[dict], cases: dict, source: str) -> list[st
     return p
 
 
-def _overview_html(doc: dict, runs: list[dict], figures: dict) -> list[str]:
+def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list[dict] | None = None) -> list[str]:
     """The sections over all cases: engines, heat map, convergence, speed, forced settings,
     reproduced reference maps, ported engines."""
     p = []
@@ -113,6 +114,10 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict) -> list[str]:
              "the observed order p for the orientation and the energy error (sat.: the errors saturate, "
              "at order pi or at the truth's accuracy floor, so no order is meaningful).</p>")
     p.append(img(figures.get("convergence"), "convergence"))
+    columns, rows = rd.observed_orders(convergence or [], runs)
+    if rows:
+        p.append("<h3>Observed order of convergence per engine run</h3>"
+                 f'<p class="note">{escape(md.ORDER_NOTE)}</p>' + table(columns, rows))
     p.append("<h2>Speed and accuracy</h2>"
              '<p class="note">Orientation error against wall-clock time per simulated second, one point per '
              "time step (lower left is better).</p>")
@@ -142,7 +147,7 @@ def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], ca
     p.append(f'<h2 id="{anchor(case)}">Case <code>{escape(case)}</code></h2>')
     if ph is not None:
         p.append(f"<p>{escape(ph.description)}</p><p class=\"note\">Truth: {escape(ph.truth or '?')}.</p>")
-    p.append("<h3>Runs</h3>" + table(md.RUN_COLUMNS, md.run_rows(case_runs), status_col=2))
+    p.append("<h3>Runs</h3>" + table(*md.run_table(case_runs), status_col=2))
     bad = [r for r in case_runs if r.get("status") != Status.OK]
     if bad:
         items = dict.fromkeys(f"{rd.label(r)} dt = {float(r['dt']):g} s: {r.get('status')}: "
@@ -150,7 +155,7 @@ def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], ca
         p.append("<p>Not ok:</p><ul>" + "".join(f"<li>{escape(x)}</li>" for x in items) + "</ul>")
     mine = [e for e in convergence if e.get("case") == case]
     p.append("<h3>Observed order (error ~ dt<sup>p</sup>)</h3>" + (
-        table(("engine run", "metric", "order p", "dts fitted (s)", "note"), md.convergence_rows(mine)) if mine
+        table(md.CONVERGENCE_COLUMNS, md.convergence_rows(mine)) if mine
         else '<p class="note">No engine run of this case ran at 3 or more time steps: no order fitted.</p>'))
     if case_pairs is None:
         case_pairs = rd.pairwise(case_runs, ph, out_dir)

@@ -10,11 +10,13 @@ from pathlib import Path
 from . import data as rd
 from ..run.convergence import SHORT_NAMES
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL,
-                           ORIENTATION_ERROR_MAX, POSITION_ERROR_MAX)
+                           ORIENTATION_ERROR_MAX, POSITION_ERROR_MAX, ROTATION_ORTHONORMALITY_ERROR_MAX)
 from ..run.records import Status
 
 RUN_COLUMNS = ("engine run", "dt (s)", "status", "orientation max (rad)", "orientation final (rad)",
                "L max (rel)", "E max (rel)", "position max (m)", "wall s / sim s", "reproduces")
+# Shown before "reproduces" when a run of the table integrates R as a matrix (it has the metric).
+ORTHONORMALITY_COLUMN = "orthonormality max (||R^T R - 1||_F)"
 
 
 def md_table(header: tuple[str, ...] | list[str], rows: list) -> str:
@@ -41,16 +43,48 @@ def run_rows(runs: list[dict]) -> list[tuple]:
     return rows
 
 
+def run_table(runs: list[dict]) -> tuple[tuple[str, ...], list[tuple]]:
+    """(columns, rows) of the per-case run table: :data:`RUN_COLUMNS` and :func:`run_rows`, with a
+    column of the orthonormality error ||R^T R - 1||_F (max over the run) when a run has it."""
+    rows = run_rows(runs)
+    if all(rd.metric(r, ROTATION_ORTHONORMALITY_ERROR_MAX) is None for r in runs):
+        return RUN_COLUMNS, rows
+    order = {lab: i for i, lab in enumerate(rd.labels(runs))}
+    ortho = [rd.num(rd.metric(r, ROTATION_ORTHONORMALITY_ERROR_MAX))
+             for r in sorted(runs, key=lambda r: (order[rd.label(r)], -float(r["dt"])))]
+    return (*RUN_COLUMNS[:-1], ORTHONORMALITY_COLUMN, RUN_COLUMNS[-1]), \
+        [(*row[:-1], o, row[-1]) for row, o in zip(rows, ortho)]
+
+
+CONVERGENCE_COLUMNS = ("engine run", "metric", "order p", "fit rms (decades)", "dts fitted (s)", "note")
+ORDER_NOTE = ("Each case: the observed order p of the orientation error / of the energy error "
+              "(error ~ dt^p, least squares on log-log over the time steps inside the fit range; sat.: "
+              "saturated, -: no order). Worst fit rms: the largest RMS residual of those fits in decades "
+              "(about 0.01: the errors follow one power law; 0.05 and more: the slope changes across the "
+              "time steps). Expected p: a reference integrator's formal order, or that of the reference "
+              "map every run of the engine run on these cases reproduces (-: none does).")
+
+
 def convergence_rows(entries: list[dict]) -> list[tuple]:
+    """Rows of a case's "Observed order" table (:data:`CONVERGENCE_COLUMNS`)."""
     rows = []
     for e in entries:
         lab = rd.label(e)
         order = rd.num(e.get("order"), ".2f")
         rows.append((lab, SHORT_NAMES.get(e["metric"], e["metric"]),
                      order if order != "-" else ("saturated" if e.get("saturated") else "-"),
+                     rd.num(e.get("fit_rms_decades"), ".3f"),
                      ", ".join(f"{d:g}" for d in (e.get("fitted_dts") or [])) or "-",
                      e.get("reason") or ""))
     return rows
+
+
+def observed_order_lines(convergence: list[dict], runs: list[dict]) -> list[str]:
+    """The front page's "Observed order" section (nothing when no case ran at 3 or more dts)."""
+    columns, rows = rd.observed_orders(convergence, runs)
+    if not rows:
+        return []
+    return ["## Observed order of convergence per engine run", "", ORDER_NOTE, "", md_table(columns, rows), ""]
 
 
 def not_ok_lines(runs: list[dict]) -> list[str]:
@@ -111,15 +145,14 @@ def case_section(case: str, runs: list[dict], convergence: list[dict],
     out = [f"## Case `{case}`", ""]
     if physics is not None:
         out += [physics.description, "", f"Truth: {physics.truth or '?'}.", ""]
-    out += ["### Runs", "", md_table(RUN_COLUMNS, run_rows(runs)), ""]
+    out += ["### Runs", "", md_table(*run_table(runs)), ""]
     bad = not_ok_lines(runs)
     if bad:
         out += ["Not ok:", "", *bad, ""]
     mine = [e for e in convergence if e.get("case") == case]
     out += ["### Observed order (error ~ dt^p)", ""]
     if mine:
-        out += [md_table(("engine run", "metric", "order p", "dts fitted (s)", "note"),
-                         convergence_rows(mine)), ""]
+        out += [md_table(CONVERGENCE_COLUMNS, convergence_rows(mine)), ""]
     else:
         out += [f"No engine run of this case ran at {3} or more time steps: no order fitted.", ""]
     out += ["### Engines at the end", ""]
@@ -144,7 +177,7 @@ def render_markdown(doc: dict, convergence: list[dict], physics: dict[str, rd.Ca
                     pairs: dict[str, list[rd.Pair]] | None = None) -> str:
     """The whole report.md text.  ``physics``: case name -> CasePhysics (or None); ``pairs``: case
     name -> :func:`report_data.pairwise` (computed here when not given)."""
-    lines = front_matter(doc, source)
+    lines = front_matter(doc, source) + observed_order_lines(convergence, doc.get("runs") or [])
     for case, runs in rd.by_case(doc.get("runs") or []).items():
         lines += case_section(case, runs, convergence, physics.get(case), out_dir, (pairs or {}).get(case))
     return "\n".join(lines).rstrip() + "\n"

@@ -15,8 +15,17 @@ Each entry of the results.json ``"convergence"`` list::
      "errors": [float | null, ...], # the metric at each of those dts (null: run not ok / undefined)
      "fitted_dts": [s, ...],        # the dts the fit used
      "log10_coefficient": float | null,  # c / ln 10: the fitted line is e = 10**c10 * dt**p
+     "fit_rms_decades": float | null,    # fit quality: RMS residual of log10(error) about the line
      "saturated": bool,             # true when saturation left fewer than 3 points
      "reason": str | null}          # why there is no order, or a caveat about the one given
+
+``fit_rms_decades`` says how well one power law describes the fitted points, in decades of error:
+sqrt(mean((log10 e_i - log10 e_fit(dt_i))^2)).  0.01 means the points sit within about 2 % of the
+line (a scheme in its asymptotic range: halving dt divides the error by 2**p at every step);
+0.05 and more means the local slope changes across the dts (errors not yet, or no longer, in the
+asymptotic range, or two error terms of different orders), so ``order`` is an average slope, not
+a clean order.  With 3 points the line has 1 degree of freedom left, so a curved
+series shows as a residual too.  Null when there is no order.
 """
 from __future__ import annotations
 
@@ -80,7 +89,7 @@ def _fit_one(key: tuple, metric: str, dts: list[float], runs: list[dict]) -> dic
               for r in runs]
     entry = {"case": case, "engine": engine, "integrator": integrator, "precision": precision,
              "metric": metric, "order": None, "dts": dts, "errors": errors, "fitted_dts": [],
-             "log10_coefficient": None, "saturated": False, "reason": None}
+             "log10_coefficient": None, "fit_rms_decades": None, "saturated": False, "reason": None}
     floor, high = bounds(metric, precision)
     usable = [(d, e) for d, e in zip(dts, errors) if e is not None]
     not_ok = [f"{d:g} ({r.get('status')})" for d, r in zip(dts, runs) if r.get("status") != Status.OK]
@@ -95,7 +104,8 @@ def _fit_one(key: tuple, metric: str, dts: list[float], runs: list[dict]) -> dic
                      if metric == ORIENTATION_ERROR_MAX else
                      f"{n_high} point(s) saturated above {high:g} (error as large as the energy)")
     if n_low:
-        notes.append(f"{n_low} point(s) at the truth's accuracy floor (< {floor:g})")
+        notes.append(f"{n_low} point(s) at the accuracy floor (< {floor:g}: "
+                     f"{'float32 round-off' if precision in ('float32', 'single') else 'the truth or round-off'})")
     if len(kept) < MIN_POINTS:
         entry["saturated"] = bool(n_high or n_low)
         head = "saturated" if entry["saturated"] else "too few usable points"
@@ -107,6 +117,7 @@ def _fit_one(key: tuple, metric: str, dts: list[float], runs: list[dict]) -> dic
     p, c = np.polyfit(x, y, 1)
     entry["order"] = float(p)
     entry["log10_coefficient"] = float(c / math.log(10.0))
+    entry["fit_rms_decades"] = float(np.sqrt(np.mean((y - (p * x + c)) ** 2)) / math.log(10.0))
     entry["fitted_dts"] = [d for d, _ in kept]
     steps = {r.get("steps") for r in runs}
     horizons = {round(float(r["steps"]) * d, tol.CONVERGENCE_HORIZON_DECIMALS)
