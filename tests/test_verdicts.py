@@ -228,3 +228,22 @@ def test_order_change_is_a_scheme_change(runs, baseline):
     assert result.exit_code == 1
     doc = verdict_json(result)
     assert [c["verdict"] for c in doc["changes"] if c["fails"]] == ["order changed"]
+
+
+def test_a_setting_one_engine_version_lacks_is_shown_not_a_new_experiment(runs, baseline, tmp_path, capsys):
+    """MuJoCo 3.1 has no auto-reset switch: freebody sets it on 4.0 only.  That alone must not make
+    an upgrade incomparable; a setting both sides have with another value must."""
+    def lacks_autoreset(doc):
+        for r in doc["runs"]:
+            if r["engine"] == "mujoco":
+                r["experiment"]["settings"].pop("autoreset")
+    old = _edited(baseline, tmp_path, lacks_autoreset, "old.json")
+    assert main(["compare", str(old), str(runs["long"])]) == 0
+    assert "mujoco: setting autoreset only in current" in capsys.readouterr().out
+
+    def other_timestep(doc):
+        for r in doc["runs"]:
+            if r["engine"] == "mujoco":
+                r["experiment"]["settings"]["timestep"] *= 2
+    assert main(["compare", str(_edited(baseline, tmp_path, other_timestep, "ts.json")), str(runs["long"])]) == 1
+    assert "setting timestep" in capsys.readouterr().out

@@ -41,7 +41,7 @@ from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_ABS, ANGULAR_MOMENTUM_ERRO
                            ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL, ORIENTATION_ERROR_MAX,
                            ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, POSITION_ERROR_MAX,
                            ROTATION_ORTHONORMALITY_ERROR_MAX)
-from ..run.experiment import differences
+from ..run.experiment import differences, setting_notes
 from ..run.records import Status
 
 STATUS_RANK = {Status.OK: 3, Status.DIVERGED: 2, Status.FAILED: 1}  # skipped: not measured (no rank)
@@ -122,6 +122,8 @@ class Comparison:
         overrides and that changed between the two sides (freebody sets it, so it does not change
         the numbers; shown because an upgrade moved it).
     unchecked : matched runs whose experiment could not be checked (a schema-1 side).
+    one_sided : "engine: setting K only in baseline|current (= V)": an option freebody sets that one
+        engine version lacks (not a different experiment; shown beside the versions).
     """
 
     changes: list[Change]
@@ -136,6 +138,7 @@ class Comparison:
     unchecked: int = 0
     groups: list[dict] = field(default_factory=list)
     schema_versions: tuple = (None, None)
+    one_sided: list[str] = field(default_factory=list)
 
     @property
     def regressions(self) -> list[Change]:
@@ -410,6 +413,7 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
     b_runs = _index([r for r in baseline.get("runs") or [] if keep(r)])
     c_runs = _index([r for r in current.get("runs") or [] if keep(r)])
     changes: list[Change] = []
+    one_sided: dict[str, None] = {}  # settings freebody set on one side only, per engine (ordered)
     matched = unchecked = 0
     for key, b in b_runs.items():
         lab = f"{key[0]} {run_label({**b, 'precision': key[3]})}"
@@ -420,6 +424,8 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
         matched += 1
         diff, checked = _experiment_differences(b, c)
         unchecked += not checked
+        for note in setting_notes(b.get("experiment"), c.get("experiment")):
+            one_sided.setdefault(f"{key[1]}: {note}", None)
         if diff:
             note = "; ".join(diff) + ("" if checked else " (content not checked: schema-1 results)")
             changes.append(Change(key, lab, "experiment", b.get("steps"), c.get("steps"), "not comparable",
@@ -440,7 +446,7 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
                                   c.get("status"), "new"))
     changes += _order_changes(baseline, current, keep)
     cmp = Comparison(changes, _versions(baseline, current), matched, len(b_runs), len(c_runs), tols, sources,
-                     strict, _default_changes(b_runs, c_runs), unchecked,
+                     strict, _default_changes(b_runs, c_runs), unchecked, one_sided=list(one_sided),
                      schema_versions=(baseline.get("schema_version"), current.get("schema_version")))
     return replace(cmp, groups=group_summaries(cmp, b_runs, c_runs))
 
@@ -455,9 +461,12 @@ def group_summaries(cmp: Comparison, b_runs: dict, c_runs: dict) -> list[dict]:
         if ch.verdict == "same":
             continue
         g = groups.setdefault(ch.key[1:4], {"worse": set(), "better": set(), "not comparable": set(),
-                                             "scheme changed": set(), "missing": set(), "new": set()})
-        bucket = {"regressed": "worse", "improved": "better", "order changed": "scheme changed"}.get(
-            ch.verdict, ch.verdict)
+                                             "scheme changed": set(), "missing": set(), "new": set(),
+                                             "orders": []})
+        if ch.verdict == "order changed":
+            g["orders"].append(f"order {ch.baseline:g} -> {ch.current:g} on {ch.key[0]}")
+            continue
+        bucket = {"regressed": "worse", "improved": "better"}.get(ch.verdict, ch.verdict)
         if bucket in g:
             g[bucket].add(ch.key)
     out = []
@@ -471,10 +480,12 @@ def group_summaries(cmp: Comparison, b_runs: dict, c_runs: dict) -> list[dict]:
         (bv, bsch), (cv, csch) = side(b_runs), side(c_runs)
         label = run_label({"engine": engine, "integrator": integrator, "precision": precision})
         parts = []
+        orders = g.pop("orders")
         if g["scheme changed"] and bsch != csch:
             parts.append(f"scheme {bsch} -> {csch}")
         elif g["scheme changed"]:
             parts.append(f"scheme changed in {len(g['scheme changed'])} of its runs")
+        parts += orders
         for name, word in (("worse", "worse"), ("better", "better"), ("not comparable", "not comparable"),
                            ("missing", "missing"), ("new", "new")):
             if g[name]:

@@ -8,6 +8,7 @@ The JSON verdict (schema :data:`VERDICT_SCHEMA_VERSION`, documented in docs/ci-g
      "baseline": {"source", "schema_version"}, "current": {"source", "schema_version"},
      "versions": [{"name", "baseline", "current"}],            # freebody and each engine
      "engine_defaults_changed": [{"engine", "setting", "baseline", "current"}],
+     "settings_one_side": ["engine: setting K only in baseline|current (= V)"],
      "counts": {verdict: n, ..., "matched", "baseline_runs", "current_runs", "content_unchecked"},
      "groups": [{"engine", "integrator", "precision", "baseline_version", "current_version",
                  "baseline_scheme", "current_scheme", "worse", "better", "not_comparable",
@@ -70,6 +71,9 @@ def format_comparison(cmp: Comparison, show_all: bool = False) -> str:
     if cmp.settings:
         out += ["", "engine defaults that changed (freebody sets these, so the runs do not use them):"]
         out += [f"  {e} {k}: {b} -> {c}" for e, k, b, c in cmp.settings]
+    if cmp.one_sided:
+        out += ["", "settings freebody set on one side only (an option the other engine version lacks):"]
+        out += [f"  {n}" for n in cmp.one_sided]
     if cmp.groups:
         out += ["", "what changed:"] + [f"  {g['text']}" for g in cmp.groups]
     out.append("")
@@ -83,7 +87,8 @@ def format_comparison(cmp: Comparison, show_all: bool = False) -> str:
     out.append("")
     n = counts(cmp)
     worse_runs = len({c.key for c in cmp.changes if c.verdict == "regressed"})
-    within = cmp.matched - len({c.key for c in cmp.changes if c.verdict != "same" and c.what != "run"})
+    within = cmp.matched - len({c.key for c in cmp.changes if c.verdict != "same" and c.what != "run"
+                                and c.key[4] is not None})
     verdict = "REGRESSION" if cmp.regressions else "OK"
     line = (f"{verdict}: {n['regressed']} worse ({worse_runs} runs), {n['missing']} missing, "
             f"{n['not comparable']} not comparable, {n['scheme changed']} scheme changed, "
@@ -117,6 +122,7 @@ def verdict_json(cmp: Comparison) -> dict:
         "versions": [{"name": e, "baseline": b, "current": c} for e, b, c in cmp.versions],
         "engine_defaults_changed": [{"engine": e, "setting": k, "baseline": b, "current": c}
                                     for e, k, b, c in cmp.settings],
+        "settings_one_side": cmp.one_sided,
         "counts": {**{k.replace(" ", "_"): v for k, v in n.items()}, "matched": cmp.matched,
                    "baseline_runs": cmp.baseline_runs, "current_runs": cmp.current_runs,
                    "content_unchecked": cmp.unchecked},

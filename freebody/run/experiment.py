@@ -10,14 +10,16 @@ better or worse.
      "gravity": "<12 hex>",
      "loads": "<12 hex>",              # every load's force, point, torques, start, steps, end
      "dt": float, "steps": int, "duration_s": float,   # what ran (duration_s = steps * dt)
-     "settings": "<12 hex>" | null}    # the values freebody set in the engine ("set" of
+     "settings": {key: value} | null}  # the values freebody set in the engine ("set" of
                                        # engine_settings, never the engine's own defaults, which
                                        # an upgrade may change); null when the run ended before
                                        # the engine was built (then not compared)
 
-Two runs are the same experiment when every field both of them know is equal.  Content fields
-are digests (a changed inertia shows as ``body``, not as numbers); dt, steps and duration are
-kept readable, so that a verdict can say ``steps 8000 -> 1000``.
+Two runs are the same experiment when every field both of them know is equal; of ``settings``,
+the keys both sides have (an engine version without an option freebody sets elsewhere, such as
+MuJoCo 3.1's missing auto-reset switch, is shown by :func:`setting_notes`, not a different
+experiment).  Content fields are digests (a changed inertia shows as ``body``, not as numbers); dt,
+steps, duration and settings are kept readable, so that a verdict can say ``steps 8000 -> 1000``.
 """
 from __future__ import annotations
 
@@ -67,10 +69,15 @@ def experiment(problem: Problem, dt: float, steps: int, settings: dict | None = 
     """The ``experiment`` object of a run of ``problem`` at ``dt`` for ``steps`` steps; ``settings``
     is the adapter's ``settings`` ({key: {"default", "set"}}) or None when unknown."""
     fields = dict(_content(problem), dt=float(dt), steps=int(steps), duration_s=float(steps * dt),
-                  settings=None if settings is None else _digest(
-                      {k: (v.get("set") if isinstance(v, dict) else v) for k, v in settings.items()}))
+                  settings=None if settings is None else {
+                      k: _plain(v.get("set") if isinstance(v, dict) else v) for k, v in sorted(settings.items())})
     return {"fingerprint": hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:FINGERPRINT_HEX],
             **fields}
+
+
+def _plain(v):
+    """A setting's value as JSON would store it (tuples as lists, numpy scalars as numbers)."""
+    return json.loads(json.dumps(v, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
 def differences(base: dict | None, cur: dict | None) -> list[str]:
@@ -84,8 +91,24 @@ def differences(base: dict | None, cur: dict | None) -> list[str]:
         a, b = base.get(f), cur.get(f)
         if a is None or b is None or a == b:
             continue
-        if f in ("dt", "steps", "duration_s"):
+        if f == "settings" and isinstance(a, dict) and isinstance(b, dict):
+            out += [f"setting {k} {a[k]} -> {b[k]}" for k in sorted(set(a) & set(b)) if a[k] != b[k]]
+        elif f == "settings":  # a schema-2 draft stored a digest: compare as a whole
+            out.append("settings changed")
+        elif f in ("dt", "steps", "duration_s"):
             out.append(f"{f} {a:g} -> {b:g}" if f != "steps" else f"steps {a} -> {b}")
         else:
             out.append(f"{f} changed")
     return out
+
+
+def setting_notes(base: dict | None, cur: dict | None) -> list[str]:
+    """The settings freebody set on one side only (an option one engine version lacks), each as
+    ``"setting K only in baseline|current (= V)"``."""
+    if not isinstance(base, dict) or not isinstance(cur, dict):
+        return []
+    a, b = base.get("settings"), cur.get("settings")
+    if not isinstance(a, dict) or not isinstance(b, dict):
+        return []
+    return ([f"setting {k} only in baseline (= {a[k]})" for k in sorted(set(a) - set(b))]
+            + [f"setting {k} only in current (= {b[k]})" for k in sorted(set(b) - set(a))])
