@@ -11,6 +11,7 @@ from freebody.reference_impl import integrators as ref
 from freebody.reference_impl.dynamics import wrench_function
 from freebody.reference_impl.integrators import INTEGRATORS, simulate
 from freebody.reference_impl.problem import Body, InitialState, Load, Problem
+from freebody.reference_impl.splitting import principal_frame
 from freebody.reference_impl.rotations import (matrix_from_quat, nearest_rotation, orthonormality_error,
                                                quat_from_matrix, quat_from_rotvec)
 
@@ -145,6 +146,11 @@ def _steps(scheme: str, pb: Problem, dt: float):
         implicit = scheme == "semi-implicit-implicit-gyro"
         return (lambda k, s: ref.semi_implicit_step(k, *s, dt, M, I_b, I_inv, g, wrench, implicit),
                 lambda k, s: C.semi_implicit_step(k, *tuples(s), dt, M, I_b_c, I_inv_c, g_c, loads, implicit))
+    if scheme == "symplectic-splitting":
+        frame = principal_frame(I_b)
+        axes_c, moments_c = C.mat(frame.axes), C.vec(frame.moments)
+        return (lambda k, s: ref.splitting_step(k, *s, dt, M, frame, g, wrench),
+                lambda k, s: C.splitting_step(k, *tuples(s), dt, M, axes_c, moments_c, g_c, loads))
     numpy_step, compiled_step = {"euler-quat": (ref.euler_quat_step, C.euler_quat_step),
                                  "symplectic-euler": (ref.symplectic_euler_step, C.symplectic_euler_step),
                                  "rk4": (ref.rk4_step, C.rk4_step)}[scheme]
