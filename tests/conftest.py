@@ -47,12 +47,14 @@ def pytest_generate_tests(metafunc):
 
 @pytest.fixture(scope="session", autouse=True)
 def compiled_reference_maps():
-    """Compile the reference maps once per session, before any test times a subprocess: numba
-    caches the machine code on disk (about 5 s cold, 17 s on a loaded 2-core machine), so later
-    processes load it in ~0.2 s and no test's time budget includes a first compilation."""
+    """Compile the reference maps and the engine-equivalent maps once per session, before any test
+    times a subprocess: numba caches the machine code on disk (about 5 s cold for each set, 17 s on
+    a loaded 2-core machine), so later processes load it in ~0.2 s and no test's time budget
+    includes a first compilation."""
+    from freebody.reference_impl.engine_maps import ENGINE_MAPS
     from freebody.reference_impl.integrators import INTEGRATORS, simulate
     from freebody.input import load_case
 
     problem = load_case("offset_push")  # loads of every kind: every kernel variant compiles
-    for name in INTEGRATORS:
+    for name in (*INTEGRATORS, *ENGINE_MAPS):
         simulate(problem, name, 0.01, 3)

@@ -1,0 +1,356 @@
+"""The engine-equivalent maps of :mod:`engine_maps`, one body, as compiled scalar code (numba).
+
+Each function is its numpy namesake in :mod:`engine_maps` written with the same formulas in the same
+order of operations on plain floats, with the tuple helpers of :mod:`compiled` (a vector is a tuple
+(x, y, z), a quaternion (w, x, y, z), a matrix a tuple of its rows) and its :func:`compiled.wrench`
+for the loads.  :mod:`engine_maps` stays the readable reference; this module is what
+``integrators.simulate(problem, name, ...)`` runs for an engine map; ``tests/test_engine_maps.py``
+checks each step against the numpy step to a few ulps (numpy's 3x3 products go through BLAS, so the
+two round differently in a few places).  Blow-ups give inf/NaN (``error_model="numpy"``).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .compiled import (_put, add, cross, div, dot, jit, loads_of, mat, mat_add, mat_scale, mat_sub,
+                       matmul, matrix_from_quat, matvec, quat_from_rotvec, quat_multiply, scale,
+                       scale4, skew, sub, transpose, vec, wrench)
+from .conventions import Trajectory
+from .engine_maps import (BULLET_ANGULAR_MOTION_THRESHOLD, BULLET_SERIES_BELOW, BULLET_SIMD_EPSILON,
+                          DART_EXPMAP_SERIES_BELOW, DEXPINV_SERIES_BELOW, ENGINE_MAPS, MJ_MINVAL,
+                          RK4_B, dart_log_map as _numpy_dart_log_map, principal_frame)
+from .problem import Problem
+from .rotations import matrix_from_quat as _numpy_matrix_from_quat, quat_conjugate
+
+__all__ = ["simulate_compiled_engine_map", "mujoco_rk4_step", "implicit_gyro_split_torque_step",
+           "explicit_gyro_truncated_exp_step"]
+
+_B1, _B2, _B3, _B4 = RK4_B
+
+
+# --- MuJoCo RK4 ----------------------------------------------------------------------------------
+
+@jit
+def _mj_normalize4(q):
+    norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if abs(norm - 1.0) > MJ_MINVAL:
+        return scale4(1.0 / norm, q)
+    return q
+
+
+@jit
+def mujoco_quat_integrate(q, w, h, normalize_first):
+    """engine_maps.mujoco_quat_integrate: q * Exp(h w), MuJoCo's way."""
+    norm = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    axis = (1.0, 0.0, 0.0) if norm < MJ_MINVAL else scale(1.0 / norm, w)
+    angle = h * norm
+    if angle == 0.0:
+        dq = (1.0, 0.0, 0.0, 0.0)
+    else:
+        s = math.sin(0.5 * angle)
+        dq = (math.cos(0.5 * angle), axis[0] * s, axis[1] * s, axis[2] * s)
+    if normalize_first:
+        return quat_multiply(_mj_normalize4(q), dq)
+    return _mj_normalize4(quat_multiply(q, dq))
+
+
+@jit
+def dexpinv(u, w):
+    """engine_maps.dexpinv: w + 1/2 u x w + c(|u|) u x (u x w)."""
+    t = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+    c = 1.0 / 12.0 if t < DEXPINV_SERIES_BELOW else (1.0 - 0.5 * t / math.tan(0.5 * t)) / (t * t)
+    return add(add(w, scale(0.5, cross(u, w))), scale(c, cross(u, cross(u, w))))
+
+
+@jit
+def _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau):
+    """(f / M + g, I^-1 (R(q)^T tau - w_b x I w_b))."""
+    R = matrix_from_quat(q)
+    rhs = sub(matvec(transpose(R), tau), cross(w_b, matvec(I_b, w_b)))
+    return add(div(f, M), g), matvec(I_inv, rhs)
+
+
+@jit
+def _mj_stage(q, v, w_b, h, c, v_prev, K_prev, a_prev, alpha_prev, M, I_b, I_inv, g, f, tau,
+              munthe_kaas, normalize_first):
+    """Stage i of mujoco_rk4_step from stage i-1's slopes: (v_i, K_i, a_i, alpha_i)."""
+    dK = scale(c, K_prev)
+    q_i = mujoco_quat_integrate(q, dK, h, normalize_first)
+    v_i = add(v, scale(h, scale(c, a_prev)))
+    w_i = add(w_b, scale(h, scale(c, alpha_prev)))
+    a_i, alpha_i = _mj_acceleration(q_i, w_i, M, I_b, I_inv, g, f, tau)
+    K_i = dexpinv(scale(h, dK), w_i) if munthe_kaas else w_i
+    return v_i, K_i, a_i, alpha_i
+
+
+@jit
+def _rk4_combine(s1, s2, s3, s4):
+    """b_1 s_1 + b_2 s_2 + b_3 s_3 + b_4 s_4, summed left to right."""
+    return add(add(add(scale(_B1, s1), scale(_B2, s2)), scale(_B3, s3)), scale(_B4, s4))
+
+
+@jit
+def mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas, normalize_first):
+    """engine_maps.rkmk4_body_step (munthe_kaas, normalize_first) and rk4_body_exp_step (neither):
+    the wrench of step k at the start, then mujoco_rk4_step.  (The stage positions x_i of MuJoCo's
+    RK4 enter nothing but the final sum, through the stage velocities.)"""
+    h = dt
+    f, tau = wrench(k, x, matrix_from_quat(q), loads)
+    a1, alpha1 = _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau)
+    v2, K2, a2, alpha2 = _mj_stage(q, v, w_b, h, 0.5, v, w_b, a1, alpha1, M, I_b, I_inv, g, f, tau,
+                                   munthe_kaas, normalize_first)
+    v3, K3, a3, alpha3 = _mj_stage(q, v, w_b, h, 0.5, v2, K2, a2, alpha2, M, I_b, I_inv, g, f, tau,
+                                   munthe_kaas, normalize_first)
+    v4, K4, a4, alpha4 = _mj_stage(q, v, w_b, h, 1.0, v3, K3, a3, alpha3, M, I_b, I_inv, g, f, tau,
+                                   munthe_kaas, normalize_first)
+    v_new = add(v, scale(h, _rk4_combine(a1, a2, a3, a4)))
+    w_new = add(w_b, scale(h, _rk4_combine(alpha1, alpha2, alpha3, alpha4)))
+    x_new = add(x, scale(h, _rk4_combine(v, v2, v3, v4)))
+    q_new = mujoco_quat_integrate(q, _rk4_combine(w_b, K2, K3, K4), h, normalize_first)
+    return x_new, q_new, v_new, w_new
+
+
+@jit
+def run_mujoco_rk4(x, q, v, w_b, dt, steps, M, I_b, I_inv, g, loads, munthe_kaas, normalize_first,
+                   out_x, out_q, out_v, out_w):
+    """Rows 1..steps of x, q, v, w = R(q) w_b (world)."""
+    for k in range(steps):
+        x, q, v, w_b = mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas,
+                                       normalize_first)
+        _put(out_x, k + 1, x)
+        _put(out_q, k + 1, q)
+        _put(out_v, k + 1, v)
+        _put(out_w, k + 1, matvec(matrix_from_quat(q), w_b))
+
+
+# --- PyBullet maximal ----------------------------------------------------------------------------
+
+@jit
+def solve33(J, b):
+    """engine_maps.solve33: Bullet's Cramer's rule on J's columns."""
+    Jt = transpose(J)
+    c1, c2, c3 = Jt[0], Jt[1], Jt[2]
+    det = dot(c1, cross(c2, c3))
+    if abs(det) > BULLET_SIMD_EPSILON:
+        det = 1.0 / det
+    return (det * dot(b, cross(c2, c3)), det * dot(c1, cross(b, c3)), det * dot(c1, cross(c2, b)))
+
+
+@jit
+def bullet_matrix_from_quat(q):
+    """engine_maps.bullet_matrix_from_quat (btMatrix3x3::setRotation)."""
+    w, x, y, z = q
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    xs, ys, zs = x * s, y * s, z * s
+    wx, wy, wz = w * xs, w * ys, w * zs
+    xx, xy, xz = x * xs, x * ys, x * zs
+    yy, yz, zz = y * ys, y * zs, z * zs
+    return ((1.0 - (yy + zz), xy - wz, xz + wy),
+            (xy + wz, 1.0 - (xx + zz), yz - wx),
+            (xz - wy, yz + wx, 1.0 - (xx + yy)))
+
+
+@jit
+def bullet_quat_from_matrix(m):
+    """engine_maps.bullet_quat_from_matrix (btMatrix3x3::getRotation), wxyz."""
+    trace = m[0][0] + m[1][1] + m[2][2]
+    if trace > 0.0:
+        s = math.sqrt(trace + 1.0)
+        qw = s * 0.5
+        s = 0.5 / s
+        return (qw, (m[2][1] - m[1][2]) * s, (m[0][2] - m[2][0]) * s, (m[1][0] - m[0][1]) * s)
+    if m[0][0] < m[1][1]:
+        i = 2 if m[1][1] < m[2][2] else 1
+    else:
+        i = 2 if m[0][0] < m[2][2] else 0
+    j = (i + 1) % 3
+    k = (i + 2) % 3
+    s = math.sqrt(m[i][i] - m[j][j] - m[k][k] + 1.0)
+    qi = s * 0.5
+    s = 0.5 / s
+    qw = (m[k][j] - m[j][k]) * s
+    qj = (m[j][i] + m[i][j]) * s
+    qk = (m[k][i] + m[i][k]) * s
+    if i == 0:
+        return (qw, qi, qj, qk)
+    if i == 1:
+        return (qw, qk, qi, qj)
+    return (qw, qj, qk, qi)
+
+
+@jit
+def bullet_quat_rotate(q, u):
+    """engine_maps.bullet_quat_rotate: q (0, u) q^-1."""
+    p = quat_multiply(quat_multiply(q, (0.0, u[0], u[1], u[2])), (q[0], -q[1], -q[2], -q[3]))
+    return (p[1], p[2], p[3])
+
+
+@jit
+def bullet_integrate_rotation(B, w, h):
+    """engine_maps.bullet_integrate_rotation: setRotation(normalize(dq * getRotation(B)))."""
+    a2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    a = math.sqrt(a2) if a2 > BULLET_SIMD_EPSILON else 0.0
+    if a * h > BULLET_ANGULAR_MOTION_THRESHOLD:
+        a = BULLET_ANGULAR_MOTION_THRESHOLD / h
+    if a < BULLET_SERIES_BELOW:
+        axis = scale(0.5 * h - (h * h * h) * 0.020833333333 * a * a, w)
+    else:
+        axis = scale(math.sin(0.5 * a * h) / a, w)
+    p = quat_multiply((math.cos(a * h * 0.5), axis[0], axis[1], axis[2]), bullet_quat_from_matrix(B))
+    p = scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
+    return bullet_matrix_from_quat(p)
+
+
+@jit
+def implicit_gyro_split_torque_step(k, x, B, v, w, dt, M, moments, Vt, g, loads):
+    """engine_maps.implicit_gyro_split_torque_step (PyBullet maximal); B the principal basis."""
+    h = dt
+    f, tau = wrench(k, x, matmul(B, Vt), loads)
+    dv = scale(h, scale(1.0 / M, add(f, scale(M, g))))
+    inv = (1.0 / moments[0], 1.0 / moments[1], 1.0 / moments[2])
+    B_scaled = ((B[0][0] * inv[0], B[0][1] * inv[1], B[0][2] * inv[2]),
+                (B[1][0] * inv[0], B[1][1] * inv[1], B[1][2] * inv[2]),
+                (B[2][0] * inv[0], B[2][1] * inv[1], B[2][2] * inv[2]))
+    I_w_inv = matmul(B_scaled, transpose(B))
+    dw = scale(h, matvec(transpose(I_w_inv), tau))  # tau^T I_w^-1
+    q = bullet_quat_from_matrix(B)
+    I = ((moments[0], 0.0, 0.0), (0.0, moments[1], 0.0), (0.0, 0.0, moments[2]))
+    w_b = bullet_quat_rotate((q[0], -q[1], -q[2], -q[3]), w)
+    I_w_b = matvec(I, w_b)
+    J = mat_add(I, mat_scale(h, mat_sub(matmul(skew(w_b), I), skew(I_w_b))))
+    w_b_new = sub(w_b, solve33(J, scale(h, cross(w_b, I_w_b))))
+    dw = add(dw, sub(bullet_quat_rotate(q, w_b_new), w))
+    v = add(v, dv)
+    w = add(w, dw)
+    return add(x, scale(h, v)), bullet_integrate_rotation(B, w, h), v, w
+
+
+@jit
+def run_bullet_maximal(x, B, v, w, dt, steps, M, moments, Vt, q_V_inv, g, loads,
+                       out_x, out_q, out_v, out_w):
+    """Rows 1..steps of x, q_body = getRotation(B) q_V^-1, v, w (world)."""
+    for k in range(steps):
+        x, B, v, w = implicit_gyro_split_torque_step(k, x, B, v, w, dt, M, moments, Vt, g, loads)
+        _put(out_x, k + 1, x)
+        _put(out_q, k + 1, quat_multiply(bullet_quat_from_matrix(B), q_V_inv))
+        _put(out_v, k + 1, v)
+        _put(out_w, k + 1, w)
+
+
+# --- DART ----------------------------------------------------------------------------------------
+
+@jit
+def dart_exp_map_rot(phi):
+    """engine_maps.dart_exp_map_rot: Rodrigues, or I + [phi] + 1/2 [phi]^2 below 1e-3 rad."""
+    t = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+    S = skew(phi)
+    S2 = matmul(S, S)
+    eye = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+    if t < DART_EXPMAP_SERIES_BELOW:
+        return mat_add(mat_add(eye, S), mat_scale(0.5, S2))
+    return mat_add(mat_add(eye, mat_scale(math.sin(t) / t, S)), mat_scale((1.0 - math.cos(t)) / (t * t), S2))
+
+
+@jit
+def _eigen_quat_from_matrix(m):
+    """engine_maps._eigen_quat_from_matrix (Eigen's Shoemake), wxyz."""
+    tr = m[0][0] + m[1][1] + m[2][2]
+    if tr > 0.0:
+        t = math.sqrt(tr + 1.0)
+        w = 0.5 * t
+        t = 0.5 / t
+        return (w, (m[2][1] - m[1][2]) * t, (m[0][2] - m[2][0]) * t, (m[1][0] - m[0][1]) * t)
+    i = 0
+    if m[1][1] > m[0][0]:
+        i = 1
+    if m[2][2] > m[i][i]:
+        i = 2
+    j = (i + 1) % 3
+    k = (j + 1) % 3
+    t = math.sqrt(m[i][i] - m[j][j] - m[k][k] + 1.0)
+    qi = 0.5 * t
+    t = 0.5 / t
+    qw = (m[k][j] - m[j][k]) * t
+    qj = (m[j][i] + m[i][j]) * t
+    qk = (m[k][i] + m[i][k]) * t
+    if i == 0:
+        return (qw, qi, qj, qk)
+    if i == 1:
+        return (qw, qk, qi, qj)
+    return (qw, qj, qk, qi)
+
+
+@jit
+def dart_log_map(R):
+    """engine_maps.dart_log_map: Eigen::AngleAxisd(R).angle() * axis()."""
+    q = _eigen_quat_from_matrix(R)
+    n = math.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if n == 0.0:
+        return (0.0, 0.0, 0.0)
+    angle = 2.0 * math.atan2(n, abs(q[0]))
+    vec_ = (q[1] / n, q[2] / n, q[3] / n) if q[0] >= 0.0 else (-q[1] / n, -q[2] / n, -q[3] / n)
+    return scale(angle, vec_)
+
+
+@jit
+def explicit_gyro_truncated_exp_step(k, x, phi, v, w_b, dt, M, I_b, I_inv, g, loads):
+    """engine_maps.explicit_gyro_truncated_exp_step (DART)."""
+    h = dt
+    R = dart_exp_map_rot(phi)
+    f, tau = wrench(k, x, R, loads)
+    rhs = sub(matvec(transpose(R), tau), cross(w_b, matvec(I_b, w_b)))
+    w_b = add(w_b, scale(h, matvec(I_inv, rhs)))
+    v = add(v, scale(h, add(div(f, M), g)))
+    x = add(x, scale(h, v))
+    phi = dart_log_map(matmul(R, dart_exp_map_rot(scale(h, w_b))))
+    return x, phi, v, w_b
+
+
+@jit
+def run_dart(x, phi, v, w_b, dt, steps, M, I_b, I_inv, g, loads, out_x, out_q, out_v, out_w):
+    """Rows 1..steps of x, q = Exp(phi) (as the adapter reads the positions), v, w = expMapRot(phi) w_b."""
+    for k in range(steps):
+        x, phi, v, w_b = explicit_gyro_truncated_exp_step(k, x, phi, v, w_b, dt, M, I_b, I_inv, g, loads)
+        _put(out_x, k + 1, x)
+        _put(out_q, k + 1, quat_from_rotvec(phi))
+        _put(out_v, k + 1, v)
+        _put(out_w, k + 1, matvec(dart_exp_map_rot(phi), w_b))
+
+
+# --- from a Problem --------------------------------------------------------------------------------
+
+def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: int) -> Trajectory:
+    """``engine_maps.simulate_engine_map(problem, name, dt, steps, compiled=False)`` by the compiled
+    maps: the same Trajectory to rounding.  The initial state is formed in numpy as there."""
+    from .engine_maps import _start, dart_exp_map_rot as _numpy_exp_map_rot
+    from .rotations import quat_from_rotvec as _numpy_quat_from_rotvec, quat_multiply as _numpy_qmul
+
+    if name not in ENGINE_MAPS:
+        raise KeyError(name)
+    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    loads = loads_of(problem, dt)
+    dt, steps = float(dt), int(steps)  # one compiled signature whatever the caller passes
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
+    if name in ("rkmk4-body", "rk4-body-exp"):
+        w_b = _numpy_matrix_from_quat(q).T @ w
+        rkmk = name == "rkmk4-body"
+        run_mujoco_rk4(vec(x), vec(q), vec(v), vec(w_b), dt, steps, M, mat(I_b), mat(I_inv), vec(g), loads,
+                       rkmk, rkmk, out.position, out.quaternion_wxyz, out.linear_velocity,
+                       out.angular_velocity)
+    elif name == "implicit-gyro-split-torque":
+        moments, V, q_V = principal_frame(I_b)
+        B = bullet_matrix_from_quat(vec(_numpy_qmul(q, q_V)))
+        run_bullet_maximal(vec(x), B, vec(v), vec(w), dt, steps, M, vec(moments), mat(V.T),
+                           vec(quat_conjugate(q_V)), vec(g), loads, out.position, out.quaternion_wxyz,
+                           out.linear_velocity, out.angular_velocity)
+    else:
+        phi = _numpy_dart_log_map(_numpy_matrix_from_quat(q))
+        w_b = _numpy_exp_map_rot(phi).T @ w
+        out.quaternion_wxyz[0] = _numpy_quat_from_rotvec(phi)
+        run_dart(vec(x), vec(phi), vec(v), vec(w_b), dt, steps, M, mat(I_b), mat(I_inv), vec(g), loads,
+                 out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity)
+    out.t[:] = np.arange(steps + 1) * dt
+    return out

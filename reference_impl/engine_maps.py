@@ -1,0 +1,527 @@
+"""Engine-equivalent maps: one step of an engine's integrator on a lone free body, as readable numpy.
+
+The reference integrators (:mod:`integrators`) are the lecture's schemes.  An engine's integrator is
+often one of them with a twist: a Lie-group correction, a torque applied outside an implicit step, a
+truncated series.  Each function here is the one-step map of one engine integrator, written from
+the engine's source (cited in its docstring), on the engine's own state variables, so that a run
+of the map reproduces the engine's run to round-off; each was checked against the installed engine
+(versions in :data:`ENGINE_MAPS` summaries and ``docs/engine-maps.md``; ``tests/test_engine_maps.py``
+repeats the check).  They are selectable by name like the reference integrators::
+
+    integrators.simulate(problem, "rkmk4-body", dt, steps)
+
+Maps (``ENGINE_MAPS[name]``):
+
+- ``rkmk4-body`` (MuJoCo 4.x ``RK4``): classic RK4 on (x, v, w_b) and the orientation by the
+  Runge-Kutta-Munthe-Kaas method: fourth order.
+- ``rk4-body-exp`` (MuJoCo 3.x ``RK4``, MJX ``RK4``): the same stages without the dexp^-1
+  correction: the orientation is second order.
+- ``implicit-gyro-split-torque`` (PyBullet ``maximal``, a btRigidBody): semi-implicit Euler with
+  the gyroscopic term linearised implicitly in the body frame, the external torque's impulse added
+  outside that implicit step, and the world-frame exponential map with Bullet's pi/4 cap per step.
+- ``explicit-gyro-truncated-exp`` (DART ``semi-implicit``): the engines' semi-implicit Euler with the
+  explicit gyroscopic term (reference ``semi-implicit-explicit-gyro``), but the orientation kept as
+  DART's FreeJoint rotation vector and re-formed each step by DART's ``expMapRot``, whose series
+  below 1e-3 rad, I + [phi] + [phi]^2 / 2, is not a rotation (an error of |phi|^3 / 6).
+
+Loads, as the adapters apply them (``adapters/loads.py``): the wrench of step k (force (3,) N world,
+torque about the COM (3,) N m world) is evaluated ONCE, at the state at the start of step k (torque
+arms from x_k and R_k), and held constant over the step: every RK stage sees the same world force
+and world torque (a body couple turned by R_k, not by the stage's rotation).  That is how the
+adapters drive MuJoCo (``xfrc_applied`` written before each step), PyBullet
+(``applyExternalForce``/``applyExternalTorque`` before each step) and DART (``addExtForce``/
+``addExtTorque``, body-frame torques in DART's body frame).  The reference integrators' ``rk4``
+instead re-evaluates the arms at each stage.
+
+Each map is one numpy function of a step, ``*_step(k, state..., dt, constants..., wrench)``, with
+``wrench(k, x, R)`` from :func:`dynamics.wrench_function`.  :mod:`compiled_engine_maps` has the same
+maps as compiled scalar code (numba), which :func:`integrators.simulate` runs;
+``tests/test_engine_maps.py`` checks the two equal step by step to a few ulps.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .conventions import Trajectory
+from .dynamics import Wrench, wrench_function
+from .integrators import Integrator
+from .problem import Problem
+from .rotations import matrix_from_quat, quat_conjugate, quat_from_matrix, quat_from_rotvec, quat_multiply, skew
+
+__all__ = ["ENGINE_MAPS", "simulate_engine_map", "rkmk4_body_step", "rk4_body_exp_step",
+           "implicit_gyro_split_torque_step", "explicit_gyro_truncated_exp_step", "dexpinv",
+           "mujoco_quat_integrate", "bullet_integrate_rotation", "bullet_matrix_from_quat",
+           "bullet_quat_from_matrix", "dart_exp_map_rot", "dart_log_map",
+           "principal_frame"]
+
+# MuJoCo's mjMINVAL (mjmodel.h): below it a norm counts as zero; a quaternion whose norm is within
+# it of 1 is not rescaled (mju_normalize4).
+MJ_MINVAL = 1e-15
+# dexp^-1's coefficient c(t) = (1 - (t/2) cot(t/2)) / t^2 is 1/12 + t^2/720 + ...; below this angle
+# the closed form cancels catastrophically and its limit 1/12 is exact to rounding (t^2/720 < 2e-15).
+DEXPINV_SERIES_BELOW = 1e-6
+# Bullet's ANGULAR_MOTION_THRESHOLD (btTransformUtil.h): 0.5 * SIMD_HALF_PI, the largest rotation
+# of one step; a faster body turns by this much per step, however fast it spins.
+BULLET_ANGULAR_MOTION_THRESHOLD = 0.25 * math.pi
+# Bullet's integrateTransform uses a Taylor series of sin(a h / 2) / a below this |w| (rad/s).
+BULLET_SERIES_BELOW = 0.001
+BULLET_SIMD_EPSILON = float(np.finfo(float).eps)  # SIMD_EPSILON in double precision: DBL_EPSILON
+# DART's EPSILON_EXPMAP_THETA (dart/math/Geometry.cpp): expMapRot's series below this angle (rad).
+DART_EXPMAP_SERIES_BELOW = 1.0e-3
+
+# Classic RK4: stage i starts from X_0 moved by h c_i times stage i-1's slope (MuJoCo's RK4_A, whose
+# only non-zero entries are its subdiagonal), and the step combines the slopes with weights B.
+RK4_C = (0.5, 0.5, 1.0)
+RK4_B = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
+
+
+# --- MuJoCo RK4 ----------------------------------------------------------------------------------
+
+def mujoco_quat_integrate(q: np.ndarray, w: np.ndarray, h: float, normalize_first: bool) -> np.ndarray:
+    """mju_quatIntegrate (MuJoCo ``engine_util_spatial.c``): q * Exp(h w), w (3,) rad/s in the body
+    frame, q (4,) wxyz body -> world.
+
+    As MuJoCo forms it: axis = w / |w| (mju_normalize3: times 1/|w|; (1, 0, 0) when |w| < mjMINVAL),
+    angle = h |w|, Exp = (cos(angle/2), axis sin(angle/2)) (mju_axisAngle2Quat; the identity at angle
+    0).  ``normalize_first``: MuJoCo 4.0 (and late 3.x) normalise q, then multiply; MuJoCo 3.1 and
+    MJX (``mjx/_src/math.py`` quat_integrate) multiply, then normalise.  mju_normalize4 rescales
+    only when |q| differs from 1 by more than mjMINVAL.
+    """
+    norm = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    axis = np.array([1.0, 0.0, 0.0]) if norm < MJ_MINVAL else w * (1.0 / norm)
+    angle = h * norm
+    if angle == 0.0:
+        dq = np.array([1.0, 0.0, 0.0, 0.0])
+    else:
+        dq = np.concatenate([[np.cos(0.5 * angle)], axis * np.sin(0.5 * angle)])
+    if normalize_first:
+        return quat_multiply(_mj_normalize4(q), dq)
+    return _mj_normalize4(quat_multiply(q, dq))
+
+
+def _mj_normalize4(q: np.ndarray) -> np.ndarray:
+    """mju_normalize4: q times 1/|q| when |q| is more than mjMINVAL from 1, else q as it is."""
+    norm = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return q * (1.0 / norm) if abs(norm - 1.0) > MJ_MINVAL else q
+
+
+def dexpinv(u: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """dexp^-1_u(w) on so(3) for q(s) = q0 Exp(u(s)) with body-frame rate w: u' = dexp^-1_u(w).
+
+    u : (3,) rad, the rotation vector from the step's start (body frame).  w : (3,) rad/s body frame.
+    Returns (3,) rad/s: w + 1/2 u x w + c(|u|) u x (u x w), c(t) = (1 - (t/2) cot(t/2)) / t^2 (the
+    closed form of the series 1/12 + t^2/720 + ...; 1/12 below DEXPINV_SERIES_BELOW).  MuJoCo 4.0's
+    RK4 passes each stage's rate through it (the Runge-Kutta-Munthe-Kaas correction).
+    """
+    t = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+    c = 1.0 / 12.0 if t < DEXPINV_SERIES_BELOW else (1.0 - 0.5 * t / np.tan(0.5 * t)) / (t * t)
+    return w + 0.5 * np.cross(u, w) + c * np.cross(u, np.cross(u, w))
+
+
+def _mj_acceleration(q, w_b, M: float, I_b, I_inv, g, f, tau):
+    """MuJoCo's qacc of a lone free body whose COM is its origin, at stage state (q, w_b):
+    (linear (3,) m/s^2 world = f / M + g, angular (3,) rad/s^2 body = I^-1 (R^T tau - w_b x I w_b)),
+    f (3,) N and tau (3,) N m world, held over the step; R = R(q) (normalised, as mj_kinematics)."""
+    R = matrix_from_quat(q)
+    return f / M + g, I_inv @ (R.T @ tau - np.cross(w_b, I_b @ w_b))
+
+
+def mujoco_rk4_step(x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, f, tau,
+                    munthe_kaas: bool, normalize_first: bool):
+    """One ``mj_RungeKutta(m, d, 4)`` (MuJoCo ``engine_forward.c``) of a lone free body.
+
+    State in MuJoCo's free-joint variables: x (3,) m world (qpos[0:3]), q (4,) wxyz body -> world
+    (qpos[3:7]), v (3,) m/s world (qvel[0:3]), w_b (3,) rad/s BODY frame (qvel[3:6]).  f (3,) N and
+    tau (3,) N m world: the wrench of the step (``xfrc_applied``), the same at every stage.
+
+    Stage 1 is the start; stage i = 2, 3, 4 starts from the start moved by h c_i (c = 1/2, 1/2, 1)
+    times stage i-1's slopes (mj_integratePos for x and q, qvel0 + h c_i qacc for the velocities):
+    x_i = x + h (c_i v_{i-1}), q_i = quatIntegrate(q, c_i K_{i-1}, h), v_i, w_i likewise, and its
+    slopes are (v_i, K_i, qacc_i).  ``munthe_kaas`` (MuJoCo 4.0, changelog 4.0.0 item 5): the
+    orientation slope K_i = dexp^-1(h c_i K_{i-1}, w_i) (K_1 = w_b), Runge-Kutta-Munthe-Kaas, fourth
+    order.  Without it (MuJoCo 3.x, MJX): K_i = w_i, second order in the orientation.  The step
+    (mj_advance): v+ = v + h sum b_i a_i, w_b+ likewise, x+ = x + h sum b_i v_i,
+    q+ = quatIntegrate(q, sum b_i K_i, h).  Sums in MuJoCo's order: b_1 X_1 + b_2 X_2 + ....
+    """
+    h = dt
+    a1, alpha1 = _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau)
+    vs, Ks, accs, alphas = [v], [w_b], [a1], [alpha1]  # slopes of the stages so far
+    for c in RK4_C:  # (the stage positions x_i enter nothing: the loads are fixed over the step)
+        dK = c * Ks[-1]
+        q_i = mujoco_quat_integrate(q, dK, h, normalize_first)
+        v_i = v + h * (c * accs[-1])
+        w_i = w_b + h * (c * alphas[-1])
+        a_i, alpha_i = _mj_acceleration(q_i, w_i, M, I_b, I_inv, g, f, tau)
+        vs.append(v_i)
+        Ks.append(dexpinv(h * dK, w_i) if munthe_kaas else w_i)
+        accs.append(a_i)
+        alphas.append(alpha_i)
+    b1, b2, b3, b4 = RK4_B
+    v_new = v + h * (b1 * accs[0] + b2 * accs[1] + b3 * accs[2] + b4 * accs[3])
+    w_new = w_b + h * (b1 * alphas[0] + b2 * alphas[1] + b3 * alphas[2] + b4 * alphas[3])
+    x_new = x + h * (b1 * vs[0] + b2 * vs[1] + b3 * vs[2] + b4 * vs[3])
+    q_new = mujoco_quat_integrate(q, b1 * Ks[0] + b2 * Ks[1] + b3 * Ks[2] + b4 * Ks[3], h,
+                                  normalize_first)
+    return x_new, q_new, v_new, w_new
+
+
+def rkmk4_body_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, wrench: Wrench):
+    """``rkmk4-body``: MuJoCo 4.x ``RK4`` (verified on MuJoCo 4.0.0).
+
+    Classic RK4 on (x, v, w_b) and, for the orientation, the Runge-Kutta-Munthe-Kaas method (Iserles,
+    Munthe-Kaas, Norsett and Zanna 2000, "Lie-group methods", section 5): the stage orientations
+    q_i = q Exp(h c_i K_{i-1}) and the slopes K_i = dexp^-1(h c_i K_{i-1}, w_i) in the body frame,
+    the step q+ = q Exp(h sum b_i K_i).  Fourth order.  Source: ``mj_RungeKutta``
+    (``engine_forward.c``), MuJoCo changelog 4.0.0 item 5; see :func:`mujoco_rk4_step`.
+
+    x (3,) m world, q (4,) wxyz body -> world, v (3,) m/s world, w_b (3,) rad/s body frame;
+    I_b, I_inv (3, 3) body frame; g (3,) m/s^2; wrench(k, x, R) of the state at the step's start.
+    """
+    f, tau = wrench(k, x, matrix_from_quat(q))
+    return mujoco_rk4_step(x, q, v, w_b, dt, M, I_b, I_inv, g, f, tau, munthe_kaas=True,
+                           normalize_first=True)
+
+
+def rk4_body_exp_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, wrench: Wrench):
+    """``rk4-body-exp``: MuJoCo 3.x ``RK4`` and MJX ``RK4`` (verified on MuJoCo 3.1.6 and MJX 3.17
+    float64).
+
+    The RK4 stages of :func:`rkmk4_body_step` with the body rates combined as they are (K_i = w_i,
+    no dexp^-1): a Lie-group RK4 that composes the stage rates in one exponential, q+ = q Exp(h
+    sum b_i w_i).  Fourth order in the velocities but only second order in the orientation (the
+    missing 1/2 u x w terms are O(h^2) per unit time).  Sources: ``mj_RungeKutta``
+    (``engine_forward.c``, MuJoCo 3.x), ``rungekutta4`` (``mjx/_src/forward.py``); their quaternion
+    update multiplies, then normalises (3.1's mju_quatIntegrate, MJX's quat_integrate).
+    Arguments as :func:`rkmk4_body_step`.
+    """
+    f, tau = wrench(k, x, matrix_from_quat(q))
+    return mujoco_rk4_step(x, q, v, w_b, dt, M, I_b, I_inv, g, f, tau, munthe_kaas=False,
+                           normalize_first=False)
+
+
+# --- PyBullet maximal coordinates (btRigidBody) --------------------------------------------------
+
+def principal_frame(I_body: np.ndarray):
+    """As the PyBullet adapter builds the body: I_body = V diag(moments) V^T (numpy eigh, V made
+    right-handed).  Returns (moments (3,) kg m^2 ascending, V (3, 3) principal axes as columns in the
+    body frame, q_V (4,) wxyz the principal frame's orientation in the body frame)."""
+    moments, V = np.linalg.eigh(np.asarray(I_body, dtype=float))
+    if np.linalg.det(V) < 0:
+        V[:, 2] = -V[:, 2]
+    return moments, V, quat_from_matrix(V)
+
+
+def solve33(J: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """btMatrix3x3::solve33 (Bullet ``LinearMath/btMatrix3x3.h``, from Box2D): J^-1 b by Cramer's rule
+    on J's columns (1/det taken only when |det| > SIMD_EPSILON)."""
+    c1, c2, c3 = J[:, 0], J[:, 1], J[:, 2]
+    det = np.dot(c1, np.cross(c2, c3))
+    if abs(det) > BULLET_SIMD_EPSILON:
+        det = 1.0 / det
+    return np.array([det * np.dot(b, np.cross(c2, c3)), det * np.dot(c1, np.cross(b, c3)),
+                     det * np.dot(c1, np.cross(c2, b))])
+
+
+def bullet_matrix_from_quat(q: np.ndarray) -> np.ndarray:
+    """btMatrix3x3::setRotation (``LinearMath/btMatrix3x3.h``): the basis (3, 3) of a quaternion q
+    (4,) wxyz, with s = 2 / |q|^2 (q need not be unit)."""
+    w, x, y, z = q
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    xs, ys, zs = x * s, y * s, z * s
+    wx, wy, wz = w * xs, w * ys, w * zs
+    xx, xy, xz = x * xs, x * ys, x * zs
+    yy, yz, zz = y * ys, y * zs, z * zs
+    return np.array([[1.0 - (yy + zz), xy - wz, xz + wy],
+                     [xy + wz, 1.0 - (xx + zz), yz - wx],
+                     [xz - wy, yz + wx, 1.0 - (xx + yy)]])
+
+
+def bullet_quat_from_matrix(m: np.ndarray) -> np.ndarray:
+    """btMatrix3x3::getRotation (``LinearMath/btMatrix3x3.h``): the quaternion (4,) wxyz of a basis
+    (3, 3) (Shoemake's method: the trace, or the largest diagonal entry i)."""
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    xyzw = np.zeros(4)
+    if trace > 0.0:
+        s = np.sqrt(trace + 1.0)
+        xyzw[3] = s * 0.5
+        s = 0.5 / s
+        xyzw[0:3] = [(m[2, 1] - m[1, 2]) * s, (m[0, 2] - m[2, 0]) * s, (m[1, 0] - m[0, 1]) * s]
+    else:
+        if m[0, 0] < m[1, 1]:
+            i = 2 if m[1, 1] < m[2, 2] else 1
+        else:
+            i = 2 if m[0, 0] < m[2, 2] else 0
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = np.sqrt(m[i, i] - m[j, j] - m[k, k] + 1.0)
+        xyzw[i] = s * 0.5
+        s = 0.5 / s
+        xyzw[3] = (m[k, j] - m[j, k]) * s
+        xyzw[j] = (m[j, i] + m[i, j]) * s
+        xyzw[k] = (m[k, i] + m[i, k]) * s
+    return np.array([xyzw[3], xyzw[0], xyzw[1], xyzw[2]])
+
+
+def bullet_quat_rotate(q: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """quatRotate (``LinearMath/btQuaternion.h``): u (3,) turned by q (4,) wxyz, as q (0, u) q^-1."""
+    p = quat_multiply(quat_multiply(q, np.array([0.0, u[0], u[1], u[2]])), quat_conjugate(q))
+    return p[1:]
+
+
+def bullet_integrate_rotation(B: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:
+    """The rotation part of btTransformUtil::integrateTransform (``LinearMath/btTransformUtil.h``):
+    the world-frame exponential map q+ = normalize(dq * q), q = getRotation(B), w (3,) rad/s world;
+    returns the new basis setRotation(q+) (3, 3).
+
+    dq = (cos(a h / 2), w sin(a h / 2) / a) with a = |w| (0 when |w|^2 <= SIMD_EPSILON), capped at
+    ANGULAR_MOTION_THRESHOLD / h: past the cap the body turns pi/4 a step and dq (axis still w,
+    scaled by sin(a h/2)/a) is no unit quaternion until the product is normalised (safeNormalize:
+    times 1/|q|).  Below a = 0.001, sin(a h / 2) / a is its series h/2 - h^3 a^2 / 48 (Bullet's
+    0.020833333333)."""
+    a2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    a = np.sqrt(a2) if a2 > BULLET_SIMD_EPSILON else 0.0
+    if a * h > BULLET_ANGULAR_MOTION_THRESHOLD:
+        a = BULLET_ANGULAR_MOTION_THRESHOLD / h
+    if a < BULLET_SERIES_BELOW:
+        axis = w * (0.5 * h - (h * h * h) * 0.020833333333 * a * a)
+    else:
+        axis = w * (np.sin(0.5 * a * h) / a)
+    dq = np.array([np.cos(a * h * 0.5), axis[0], axis[1], axis[2]])
+    p = quat_multiply(dq, bullet_quat_from_matrix(B))
+    p = p * (1.0 / np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]))
+    return bullet_matrix_from_quat(p)
+
+
+def implicit_gyro_split_torque_step(k: int, x, B, v, w, dt: float, M: float, moments, Vt, g,
+                                    wrench: Wrench):
+    """``implicit-gyro-split-torque``: PyBullet ``maximal`` (a btRigidBody with the default
+    BT_ENABLE_GYROSCOPIC_FORCE_IMPLICIT_BODY; verified on PyBullet 3.2.7).
+
+    Semi-implicit (symplectic) Euler whose gyroscopic term is one Newton step of the implicit
+    body-frame Euler equation (Bullet's "implicit body" gyroscopic force), with the external torque's
+    impulse h I^-1 tau added beside it, outside the implicit step (the reference
+    ``semi-implicit-implicit-gyro`` puts it inside, through J^-1): torque-free the two are the same
+    map.  The rotation by the world-frame exponential map, capped at pi/4 a step.
+
+    State in Bullet's variables: x (3,) m COM world; B (3, 3) the basis of the body's PRINCIPAL
+    frame (principal -> world, B = R_body V; Bullet stores a btTransform's rotation as this matrix
+    and converts it to a quaternion where it needs one); v (3,) m/s world; w (3,) rad/s world.
+    moments (3,) kg m^2 the principal moments, Vt (3, 3) = V^T (R_body = B V^T), g (3,) m/s^2.
+
+    One stepSimulation (btDiscreteDynamicsWorld::internalSingleStepSimulation), zero damping, no
+    contacts:
+      applyGravity: total force F = f + M g, total torque tau (the applied loads of the step);
+      btSequentialImpulseConstraintSolver::convertBodies / initSolverBody:
+        external impulses dv = F (1/M) h and dw = tau I_w^-1 h, I_w^-1 = B diag(1/I) B^T
+        (btRigidBody::updateInertiaTensor);
+        btRigidBody::computeGyroscopicImpulseImplicit_Body(h): q = getRotation(B),
+          w_b = quatRotate(q^-1, w), J = I + h ([w_b] I - [I w_b]),
+          w_b' = w_b - J^-1 (h w_b x I w_b) (solve33), dw += quatRotate(q, w_b') - w;
+      writeBackBodies: v+ = v + dv, w+ = w + dw;
+      integrateTransforms: x+ = x + h v+, B+ = bullet_integrate_rotation(B, w+, h).
+    """
+    h = dt
+    f, tau = wrench(k, x, B @ Vt)
+    dv = (f + M * g) * (1.0 / M) * h
+    I_w_inv = (B * (1.0 / moments)) @ B.T
+    dw = (tau @ I_w_inv) * h
+    q = bullet_quat_from_matrix(B)
+    I = np.diag(moments)
+    w_b = bullet_quat_rotate(quat_conjugate(q), w)
+    I_w_b = I @ w_b
+    J = I + (skew(w_b) @ I - skew(I_w_b)) * h
+    w_b_new = w_b - solve33(J, h * np.cross(w_b, I_w_b))
+    dw = dw + (bullet_quat_rotate(q, w_b_new) - w)
+    v = v + dv
+    w = w + dw
+    return x + h * v, bullet_integrate_rotation(B, w, h), v, w
+
+
+# --- DART (dartpy) -------------------------------------------------------------------------------
+
+def dart_exp_map_rot(phi: np.ndarray) -> np.ndarray:
+    """dart::math::expMapRot (``dart/math/Geometry.cpp``): R (3, 3) of a rotation vector phi (3,) rad.
+
+    Rodrigues, I + sin(t)/t [phi] + (1 - cos t)/t^2 [phi]^2, for t = |phi| >= 1e-3; below, the
+    truncated series I + [phi] + 1/2 [phi]^2, which is not orthogonal (R^T R - I = O(t^4), the
+    rotation off by O(t^3 / 6) rad: up to 1.7e-10 rad)."""
+    t = np.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
+    S = skew(phi)
+    S2 = S @ S
+    if t < DART_EXPMAP_SERIES_BELOW:
+        return np.eye(3) + S + 0.5 * S2
+    return np.eye(3) + (np.sin(t) / t) * S + ((1.0 - np.cos(t)) / (t * t)) * S2
+
+
+def _eigen_quat_from_matrix(m: np.ndarray) -> np.ndarray:
+    """Eigen's Quaternion from a 3x3 matrix (``Eigen/src/Geometry/Quaternion.h``,
+    quaternionbase_assign_impl; Shoemake's method, orthogonality not assumed), as wxyz (4,)."""
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0.0:
+        t = np.sqrt(tr + 1.0)
+        w = 0.5 * t
+        t = 0.5 / t
+        return np.array([w, (m[2, 1] - m[1, 2]) * t, (m[0, 2] - m[2, 0]) * t, (m[1, 0] - m[0, 1]) * t])
+    i = 0
+    if m[1, 1] > m[0, 0]:
+        i = 1
+    if m[2, 2] > m[i, i]:
+        i = 2
+    j = (i + 1) % 3
+    k = (j + 1) % 3
+    t = np.sqrt(m[i, i] - m[j, j] - m[k, k] + 1.0)
+    q = np.zeros(4)
+    q[1 + i] = 0.5 * t
+    t = 0.5 / t
+    q[0] = (m[k, j] - m[j, k]) * t
+    q[1 + j] = (m[j, i] + m[i, j]) * t
+    q[1 + k] = (m[k, i] + m[i, k]) * t
+    return q
+
+
+def dart_log_map(R: np.ndarray) -> np.ndarray:
+    """dart::math::logMap(Matrix3d) (``dart/math/Geometry.cpp``): Eigen::AngleAxisd(R).angle() *
+    axis(), a rotation vector (3,) rad with angle in [0, pi]: the quaternion of R (Eigen's), then
+    angle = 2 atan2(|vec|, |w|), axis = +-vec / |vec| (sign of w); (0, 0, 0) when vec = 0."""
+    q = _eigen_quat_from_matrix(R)
+    n = np.sqrt(q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    if n == 0.0:
+        return np.zeros(3)
+    angle = 2.0 * np.atan2(n, abs(q[0]))
+    return angle * (q[1:] / n if q[0] >= 0.0 else -q[1:] / n)
+
+
+def explicit_gyro_truncated_exp_step(k: int, x, phi, v, w_b, dt: float, M: float, I_b, I_inv, g,
+                                     wrench: Wrench):
+    """``explicit-gyro-truncated-exp``: DART's ``World::step`` on a lone FreeJoint body (verified
+    on DART 6.20.0, dartpy).
+
+    Semi-implicit Euler with the explicit gyroscopic term, the reference
+    ``semi-implicit-explicit-gyro`` (w_b+ = w_b + h I^-1 (tau_b - w_b x I w_b), v+ = v + h (f/M + g),
+    x+ = x + h v+, R+ = R Exp(h w_b+)), except that the orientation lives in DART's FreeJoint
+    positions, a rotation vector phi, and every rotation matrix is DART's expMapRot: R = expMapRot(phi)
+    and R+ = R expMapRot(h w_b+), phi+ = logMap(R+) (FreeJoint::integratePositions,
+    ``dart/dynamics/FreeJoint.cpp``; ``convertToTransform``/``convertToPositions``).  expMapRot's
+    truncated series below 1e-3 rad (:func:`dart_exp_map_rot`) makes R and the increment
+    slightly non-orthogonal: a per-step error of (h |w|)^3 / 6 whenever h |w| < 1e-3 (so at dt 0.001
+    for |w| < 1 rad/s), and of |phi|^3 / 6 while the body is within 1e-3 rad of its identity pose.
+    That explains DART's departure from ``semi-implicit-explicit-gyro`` (2e-7 rad on
+    gazebo_boxes_simple, 2.6e-8 on body_torque_spinup at dt = 0.001).
+
+    State: x (3,) m COM world, phi (3,) rad the FreeJoint rotation vector (body -> world), v (3,) m/s
+    world, w_b (3,) rad/s body frame; I_b, I_inv (3, 3) body frame; g (3,) m/s^2.  The world torque
+    enters as R^T tau with R = expMapRot(phi) (DART turns a world torque and force into its body
+    frame with its transform).
+    """
+    h = dt
+    R = dart_exp_map_rot(phi)
+    f, tau = wrench(k, x, R)
+    w_b = w_b + h * (I_inv @ (R.T @ tau - np.cross(w_b, I_b @ w_b)))
+    v = v + h * (f / M + g)
+    x = x + h * v
+    phi = dart_log_map(R @ dart_exp_map_rot(h * w_b))
+    return x, phi, v, w_b
+
+
+# --- whole runs -----------------------------------------------------------------------------------
+
+def _start(problem: Problem):
+    """(M, I_b, I_inv, x0, q0, v0, w0, g): the problem's constants and initial state as given (q0 not
+    renormalised: an engine takes it as written)."""
+    body, init = problem.body, problem.initial
+    return (float(body.mass), np.array(body.I_body, float), body.I_body_inv,
+            np.array(init.position, float), np.array(init.quaternion_wxyz, float),
+            np.array(init.linear_velocity, float), np.array(init.angular_velocity, float),
+            np.array(problem.gravity, float))
+
+
+def _simulate_mujoco_rk4(problem: Problem, dt: float, steps: int, munthe_kaas: bool) -> Trajectory:
+    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    wrench = wrench_function(problem, dt)
+    step = rkmk4_body_step if munthe_kaas else rk4_body_exp_step
+    w_b = matrix_from_quat(q).T @ w
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
+    for k in range(steps):
+        x, q, v, w_b = step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, wrench)
+        out.position[k + 1], out.quaternion_wxyz[k + 1], out.linear_velocity[k + 1] = x, q, v
+        out.angular_velocity[k + 1] = matrix_from_quat(q) @ w_b
+    out.t[:] = np.arange(steps + 1) * dt
+    return out
+
+
+def _simulate_bullet_maximal(problem: Problem, dt: float, steps: int) -> Trajectory:
+    M, I_b, _, x, q, v, w, g = _start(problem)
+    wrench = wrench_function(problem, dt)
+    moments, V, q_V = principal_frame(I_b)
+    q_V_inv = quat_conjugate(q_V)
+    B = bullet_matrix_from_quat(quat_multiply(q, q_V))  # resetBasePositionAndOrientation
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
+    for k in range(steps):
+        x, B, v, w = implicit_gyro_split_torque_step(k, x, B, v, w, dt, M, moments, V.T, g, wrench)
+        out.position[k + 1], out.linear_velocity[k + 1], out.angular_velocity[k + 1] = x, v, w
+        # getBasePositionAndOrientation: getRotation of the basis; the adapter: q_body = q_p q_V^-1
+        out.quaternion_wxyz[k + 1] = quat_multiply(bullet_quat_from_matrix(B), q_V_inv)
+    out.t[:] = np.arange(steps + 1) * dt
+    return out
+
+
+def _simulate_dart(problem: Problem, dt: float, steps: int) -> Trajectory:
+    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    wrench = wrench_function(problem, dt)
+    phi = dart_log_map(matrix_from_quat(q))  # Joint::setTransform -> convertToPositions
+    w_b = dart_exp_map_rot(phi).T @ w
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.linear_velocity[0], out.angular_velocity[0] = x, v, w
+    out.quaternion_wxyz[0] = quat_from_rotvec(phi)  # the adapter reads the positions back so
+    for k in range(steps):
+        x, phi, v, w_b = explicit_gyro_truncated_exp_step(k, x, phi, v, w_b, dt, M, I_b, I_inv, g, wrench)
+        out.position[k + 1], out.linear_velocity[k + 1] = x, v
+        out.quaternion_wxyz[k + 1] = quat_from_rotvec(phi)
+        out.angular_velocity[k + 1] = dart_exp_map_rot(phi) @ w_b
+    out.t[:] = np.arange(steps + 1) * dt
+    return out
+
+
+# Compiled kernel of each map (compiled_engine_maps.simulate_compiled_engine_map's switch)
+_NUMPY_RUNS = {
+    "rkmk4-body": lambda pb, dt, n: _simulate_mujoco_rk4(pb, dt, n, munthe_kaas=True),
+    "rk4-body-exp": lambda pb, dt, n: _simulate_mujoco_rk4(pb, dt, n, munthe_kaas=False),
+    "implicit-gyro-split-torque": _simulate_bullet_maximal,
+    "explicit-gyro-truncated-exp": _simulate_dart,
+}
+
+# The engine-equivalent maps, by name: candidates for scheme identification beside the reference
+# integrators (``integrators.INTEGRATORS``), not integrators of the reference engine.  ``order``:
+# of the orientation.
+ENGINE_MAPS: dict[str, Integrator] = {
+    i.name: i for i in [
+        Integrator("rkmk4-body", 4, False,
+                   "RK4 with the Munthe-Kaas dexp^-1 correction, body-frame w (MuJoCo 4.0 RK4)",
+                   _NUMPY_RUNS["rkmk4-body"]),
+        Integrator("rk4-body-exp", 2, False,
+                   "RK4 stages on body-frame w, orientation without dexp^-1: 2nd order (MuJoCo 3.x, MJX RK4)",
+                   _NUMPY_RUNS["rk4-body-exp"]),
+        Integrator("implicit-gyro-split-torque", 1, False,
+                   "implicit gyroscopic step, torque impulse outside it, capped world exp map "
+                   "(PyBullet 3.2.7 maximal)", _NUMPY_RUNS["implicit-gyro-split-torque"]),
+        Integrator("explicit-gyro-truncated-exp", 1, False,
+                   "semi-implicit Euler, explicit gyroscopic term, DART's rotation-vector positions "
+                   "and truncated expMapRot (DART 6.20)", _NUMPY_RUNS["explicit-gyro-truncated-exp"]),
+    ]
+}
+
+
+def simulate_engine_map(problem: Problem, name: str, dt: float, steps: int,
+                        compiled: bool = True) -> Trajectory:
+    """Run the engine-equivalent map ``name`` (``ENGINE_MAPS``) for ``steps`` steps of ``dt``:
+    compiled (:mod:`compiled_engine_maps`, under a microsecond a step) or, with ``compiled=False``,
+    the numpy loops of this module.  Blow-ups become inf/NaN samples, never exceptions."""
+    entry = ENGINE_MAPS[name]
+    if compiled:
+        from .compiled_engine_maps import simulate_compiled_engine_map
+        return simulate_compiled_engine_map(problem, name, dt, steps)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        return entry.simulate(problem, dt, steps)
