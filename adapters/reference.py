@@ -3,18 +3,92 @@ every engine alike.
 
 Conventions: canonical throughout (no conversion).  Integrators: every name in
 ``reference_impl.integrators.INTEGRATORS``.  Always available (numpy and numba, both required
-dependencies of freebody).  The integrators are whole-trajectory loops from the initial state,
-compiled (``reference_impl.compiled``, through ``integrators.simulate``): :meth:`prepare` integrates
-the run once and :meth:`advance` hands out its samples.
+dependencies of freebody).  The maps are the compiled step functions of
+``reference_impl.compiled`` (those ``integrators.simulate`` runs), stepped from the adapter's own
+state: :meth:`advance` continues from where the previous call ended (step index ``k``, the
+integrated state kept as the scheme holds it, e.g. R and L for a matrix scheme), so a long run can
+be delivered in chunks (:meth:`Adapter.chunks`) with memory bounded by the chunk.  The pieces
+together are ``integrators.simulate``'s trajectory bit for bit (the same step functions, called
+with the same step indices on the same floats: ``tests/test_chunked_judging.py``).
 """
 from __future__ import annotations
 
 from typing import ClassVar
 
+import numpy as np
+
 from .. import __version__ as _freebody_version
+from ..reference_impl import compiled as _c
 from ..reference_impl.conventions import Trajectory
-from ..reference_impl.integrators import INTEGRATORS, simulate
+from ..reference_impl.integrators import INTEGRATORS, _initial, simulate
 from .base import Adapter
+
+_QUAT_SCHEMES = {"euler-quat": _c.EULER_QUAT, "symplectic-euler": _c.SYMPLECTIC_EULER, "rk4": _c.RK4}
+# the maps stepped from the adapter's state (the others: integrated whole, handed out in pieces)
+CONTINUED = ("euler-matrix", "euler-matrix-gs", "semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro",
+             *_QUAT_SCHEMES)
+
+
+@_c.jit
+def _continue_matrix(k0, x, R, p, L, dt, steps, M, I_inv, Mg, loads, gram, out_x, out_q, out_v, out_w,
+                     out_ortho):
+    """Rows 1..steps after the state (x, R, p, L) of step k0 (as compiled.run_euler_matrix writes
+    them); returns the state after the last step."""
+    for i in range(steps):
+        x, R, p, L = _c.euler_matrix_step(k0 + i, x, R, p, L, dt, M, I_inv, Mg, loads, gram)
+        q, w, ortho = _c.matrix_outputs(R, L, I_inv)
+        _c._put(out_x, i + 1, x)
+        _c._put(out_q, i + 1, q)
+        _c._put(out_v, i + 1, _c.div(p, M))
+        _c._put(out_w, i + 1, w)
+        out_ortho[i + 1] = ortho
+    return x, R, p, L
+
+
+@_c.jit
+def _continue_quat(scheme, k0, x, q, p, L, dt, steps, M, I_inv, g, loads, out_x, out_q, out_v, out_w):
+    """Rows 1..steps after the state (x, q, p, L) of step k0 (as compiled.run_quat)."""
+    for i in range(steps):
+        if scheme == _c.EULER_QUAT:
+            x, q, p, L = _c.euler_quat_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
+        elif scheme == _c.SYMPLECTIC_EULER:
+            x, q, p, L = _c.symplectic_euler_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
+        else:
+            x, q, p, L = _c.rk4_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
+        _c._put(out_x, i + 1, x)
+        _c._put(out_q, i + 1, q)
+        _c._put(out_v, i + 1, _c.div(p, M))
+        _c._put(out_w, i + 1, _c.omega_world(_c.matrix_from_quat(q), I_inv, L))
+    return x, q, p, L
+
+
+@_c.jit
+def _continue_semi_implicit(k0, x, q, v, w_b, dt, steps, M, I_b, I_inv, g, loads, implicit_gyro,
+                            out_x, out_q, out_v, out_w):
+    """Rows 1..steps after the state (x, q, v, w_b) of step k0 (as compiled.run_semi_implicit)."""
+    for i in range(steps):
+        x, q, v, w_b = _c.semi_implicit_step(k0 + i, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro)
+        _c._put(out_x, i + 1, x)
+        _c._put(out_q, i + 1, q)
+        _c._put(out_v, i + 1, v)
+        _c._put(out_w, i + 1, _c.matvec(_c.matrix_from_quat(q), w_b))
+    return x, q, v, w_b
+
+
+if hasattr(_c, "splitting_step"):
+    @_c.jit
+    def _continue_splitting(k0, x, q, p, L, dt, steps, M, axes, moments, I_inv, g, loads, out_x, out_q, out_v,
+                            out_w):
+        """Rows 1..steps after the state (x, q, p, L) of step k0 (as compiled.run_splitting)."""
+        for i in range(steps):
+            x, q, p, L = _c.splitting_step(k0 + i, x, q, p, L, dt, M, axes, moments, g, loads)
+            _c._put(out_x, i + 1, x)
+            _c._put(out_q, i + 1, q)
+            _c._put(out_v, i + 1, _c.div(p, M))
+            _c._put(out_w, i + 1, _c.omega_world(_c.matrix_from_quat(q), I_inv, L))
+        return x, q, p, L
+
+    CONTINUED = (*CONTINUED, "symplectic-splitting")
 
 
 class ReferenceAdapter(Adapter):
@@ -40,20 +114,90 @@ class ReferenceAdapter(Adapter):
         return tuple(i for i in cls.integrators if i.startswith("semi-implicit"))
 
     def build(self) -> None:
+        """The initial state as ``compiled.simulate_compiled`` forms it (its row 0 and the
+        scheme's integrated variables).  A map without a continuing driver here (one added to
+        ``INTEGRATORS`` since) is integrated whole in :meth:`prepare` and handed out in pieces."""
         self._trajectory: Trajectory | None = None
+        self._stepped = self.integrator in CONTINUED
+        if not self._stepped:
+            return
+        M, I_b, I_inv, x, q, R, p, L, v, w = _initial(self.problem)
+        self._M, self._I_b, self._I_inv = float(M), _c.mat(I_b), _c.mat(I_inv)
+        self._g = _c.vec(self.problem.gravity)
+        self._Mg = _c.vec(M * np.asarray(self.problem.gravity, dtype=float))
+        self._loads = _c.loads_of(self.problem, self.dt)
+        if self.integrator in ("euler-matrix", "euler-matrix-gs"):
+            self._state = (_c.vec(x), _c.mat(R), _c.vec(p), _c.vec(L))
+        elif self.integrator.startswith("semi-implicit-"):
+            self._state = (_c.vec(x), _c.vec(q), _c.vec(v), _c.vec(R.T @ w))
+        else:
+            self._state = (_c.vec(x), _c.vec(q), _c.vec(p), _c.vec(L))
+        if self.integrator == "symplectic-splitting":
+            from ..reference_impl.splitting import principal_frame
+
+            frame = principal_frame(I_b)
+            self._frame = (_c.mat(frame.axes), _c.vec(frame.moments))
+        self._last = _c.simulate_compiled(self.problem, self.integrator, self.dt, 0)  # row 0
 
     def prepare(self, steps: int) -> None:
-        self._integrate(self.k + steps)
+        if not self._stepped:
+            self._integrate(self.k + steps)
 
     def _integrate(self, total: int) -> None:
         if self._trajectory is None or len(self._trajectory) <= total:
             self._trajectory = simulate(self.problem, self.integrator, self.dt, total)
 
     def advance(self, steps: int) -> Trajectory:
-        k0 = self.k
-        self._integrate(k0 + steps)
-        tr = self._trajectory
+        steps = int(steps)
+        if not self._stepped:
+            k0 = self.k
+            self._integrate(k0 + steps)
+            tr = self._trajectory
+            self.k = k0 + steps
+            if k0 == 0 and len(tr) == steps + 1:
+                return tr
+            return tr.tail(k0).head(steps + 1)
+        matrix = self._last.orthonormality_error is not None
+        out = Trajectory.empty(steps + 1, with_orthonormality=matrix)
+        for f in ("position", "quaternion_wxyz", "linear_velocity", "angular_velocity",
+                  *(("orthonormality_error",) if matrix else ())):
+            getattr(out, f)[0] = getattr(self._last, f)[0]
+        k0, dt, M = self.k, self.dt, self._M
+        rows = (out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity)
+        if steps:
+            if matrix:
+                self._state = _continue_matrix(k0, *self._state, dt, steps, M, self._I_inv, self._Mg,
+                                               self._loads, self.integrator == "euler-matrix-gs", *rows,
+                                               out.orthonormality_error)
+            elif self.integrator.startswith("semi-implicit-"):
+                self._state = _continue_semi_implicit(k0, *self._state, dt, steps, M, self._I_b, self._I_inv,
+                                                      self._g, self._loads,
+                                                      self.integrator == "semi-implicit-implicit-gyro", *rows)
+            elif self.integrator == "symplectic-splitting":
+                self._state = _continue_splitting(k0, *self._state, dt, steps, M, *self._frame, self._I_inv,
+                                                  self._g, self._loads, *rows)
+            else:
+                self._state = _continue_quat(_QUAT_SCHEMES[self.integrator], k0, *self._state, dt, steps, M,
+                                             self._I_inv, self._g, self._loads, *rows)
+        out.t[:] = (k0 + np.arange(steps + 1)) * dt
         self.k = k0 + steps
-        if k0 == 0 and len(tr) == steps + 1:
-            return tr
-        return tr.tail(k0).head(steps + 1)
+        self._last = out.take(np.array([steps]))  # a copy: the piece is the caller's
+        return out
+
+
+def map_orientations(problem, integrator: str, dt: float, steps: int, chunk_steps: int | None):
+    """A reference map's orientations q (wxyz) in the pieces of ``Adapter.chunks(steps,
+    chunk_steps)`` (any name ``integrators.simulate`` takes): stepped chunk by chunk where the
+    adapter continues the map, else integrated whole and cut.  Only q is kept between pieces
+    (scheme identification of a long run holds a few dozen of these streams at once)."""
+    from ..reference_impl.truth import piece_bounds
+
+    bounds = piece_bounds(steps, chunk_steps)
+    if integrator in CONTINUED:
+        adapter = ReferenceAdapter(problem, dt, integrator)
+        for k0, k1 in bounds:
+            yield adapter.advance(k1 - k0).quaternion_wxyz[0 if k0 == 0 else 1:]
+        return
+    q = simulate(problem, integrator, dt, steps).quaternion_wxyz
+    for k0, k1 in bounds:
+        yield q[0 if k0 == 0 else k0 + 1:k1 + 1]

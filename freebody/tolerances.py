@@ -180,6 +180,17 @@ TOLERANCES_FILE_MAX_BYTES = 1 * MIB
 # to 842 (mujoco, identified against seven maps) bytes per step; 9 trajectories' worth, 1008 bytes
 # per step, covers them.
 RUN_BYTES_PER_STEP = 9 * 14 * 8
+# A run of more than CHUNKED_JUDGING_MIN_STEPS steps is stepped and judged in chunks of
+# JUDGE_CHUNK_STEPS steps (run/execute.py, run/judge.RunJudge): its memory is that of one chunk
+# (~1 KB a step as above: ~100 MB) plus the samples its trajectory file keeps, whatever its length
+# (measured peak RSS of a 1e7-step MuJoCo run: see docs/parallel.md).  Shorter runs are judged whole,
+# their truth and reference maps computed once per (case, dt, steps) group and shared by the
+# group's runs (a chunked run computes its own, and its truth twice: a first pass for the maxima
+# that scale the errors and bound the divergence); 200,000 steps (~200 MB) keeps every run of the
+# default suite (at most 100,000 steps) on that path.  100,000 steps a chunk keep the per-chunk
+# overhead (numpy calls, the 28 reference runs of identification resumed) below 1% of the work.
+CHUNKED_JUDGING_MIN_STEPS = 200_000
+JUDGE_CHUNK_STEPS = 100_000
 # What the freebody process keeps per run (the spec, the result, results.json being written):
 # measured 12.4 KB per run (2000 runs of 2 steps) at the peak.
 RUN_RECORD_BYTES = 16 * 1024

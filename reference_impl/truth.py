@@ -7,12 +7,15 @@
   x and v), restarted at every load switch.  Integrating (R, L) or (q, L) directly loses two to
   three digits; body-frame variables keep about 1e-9 rad over 10 s.
 
-Both return a :class:`Trajectory` sampled at t_k = k dt, k = 0..steps.
+Both return a :class:`Trajectory` sampled at t_k = k dt, k = 0..steps, or deliver it in pieces
+(:func:`truth_chunks`, the pieces of ``Adapter.chunks``) for a run judged chunk by chunk.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.integrate import solve_ivp
+
+from typing import Iterator
 
 from .conventions import Trajectory
 from .problem import Problem
@@ -31,20 +34,51 @@ def truth_kind(problem: Problem) -> str:
 
 def truth_trajectory(problem: Problem, dt: float, steps: int, kind: str | None = None) -> Trajectory:
     """The truth at t_k = k dt for k = 0..steps, by the problem's oracle (or ``kind``)."""
+    return next(truth_chunks(problem, dt, steps, None, kind))
+
+
+def piece_bounds(steps: int, chunk_steps: int | None) -> list[tuple[int, int]]:
+    """The (first step, last step) of each piece of a run of ``steps`` steps delivered in pieces of
+    at most ``chunk_steps`` steps (None: one piece), as ``Adapter.chunks`` delivers them: the first
+    piece holds the samples k0..k1, every later one k0 + 1..k1."""
+    n = steps if chunk_steps is None else max(1, int(chunk_steps))
+    if steps <= 0:
+        return [(0, 0)]
+    return [(k0, min(k0 + n, steps)) for k0 in range(0, steps, n)]
+
+
+def truth_chunks(problem: Problem, dt: float, steps: int, chunk_steps: int | None = None,
+                 kind: str | None = None) -> Iterator[Trajectory]:
+    """The truth at t_k = k dt, k = 0..steps, in the pieces of :func:`piece_bounds` (those of
+    ``Adapter.chunks(steps, chunk_steps)``); ``chunk_steps`` None: one piece, the whole truth.
+
+    The closed form is evaluated at each piece's times: the same numbers as the whole truth.  The
+    numerical truth integrates piece after piece from the previous piece's end state (the
+    integrator restarted there, as at a load switch, its quaternion renormalised): it differs from
+    the whole-run truth by the integrator's tolerance at the joins (~1e-12 relative), not more.
+    """
     kind = kind or truth_kind(problem)
+    bounds = piece_bounds(steps, chunk_steps)
     if kind == "closed-form":
-        return closed_form_trajectory(problem, dt, steps)
-    return numerical_trajectory(problem, dt, steps)
+        for k0, k1 in bounds:
+            yield _closed_form_samples(problem, dt, k0 if k0 == 0 else k0 + 1, k1)
+        return
+    yield from _numerical_pieces(problem, dt, steps, bounds)
 
 
 def closed_form_trajectory(problem: Problem, dt: float, steps: int) -> Trajectory:
     """Closed-form torque-free rotation + ballistic COM (requires a problem without loads)."""
+    return _closed_form_samples(problem, dt, 0, steps)
+
+
+def _closed_form_samples(problem: Problem, dt: float, k0: int, k1: int) -> Trajectory:
+    """The closed form at t_k = k dt for k = k0..k1."""
     from .torque_free import torque_free_rotation
 
     if not problem.torque_free:
         raise ValueError("the closed-form truth needs a case without loads")
     init = problem.initial
-    t = np.arange(steps + 1) * dt
+    t = np.arange(k0, k1 + 1) * dt
     q, w = torque_free_rotation(problem.body.I_body, init.quaternion_wxyz, init.angular_velocity, t)
     g = problem.gravity
     x = init.position + np.outer(t, init.linear_velocity) + 0.5 * np.outer(t * t, g)
@@ -59,33 +93,43 @@ def numerical_trajectory(problem: Problem, dt: float, steps: int,
     Variables y = (x (3) m world, v (3) m/s world, q (4) wxyz body -> world, w_b (3) rad/s body).
     Euler's equations I w_b' = tau_b - w_b x I w_b; q' = 1/2 q (0, w_b); x' = v; v' = f/M + g.
     """
+    return next(_numerical_pieces(problem, dt, steps, [(0, steps)], rtol, atol))
+
+
+def _numerical_pieces(problem: Problem, dt: float, steps: int, bounds: list[tuple[int, int]],
+                      rtol: float = NUMERICAL_RTOL, atol: float = NUMERICAL_ATOL) -> Iterator[Trajectory]:
+    """:func:`numerical_trajectory` over the pieces ``bounds`` (:func:`piece_bounds`), each
+    integrated from the previous one's end state, restarted at the load switches inside it."""
     body, init = problem.body, problem.initial
     M, I_b, I_inv, g = body.mass, body.I_body, body.I_body_inv, problem.gravity
     q0 = quat_normalize(init.quaternion_wxyz)
     w_b0 = matrix_from_quat(q0).T @ init.angular_velocity
     y = np.concatenate([init.position, init.linear_velocity, q0, w_b0])
-    t_all = np.arange(steps + 1) * dt
-    Y = np.empty((steps + 1, 13))
-    Y[0] = y
-    bounds = [0, *problem.switch_steps(dt, steps), steps]
-    for k0, k1 in zip(bounds[:-1], bounds[1:]):
-        loads = problem.active_loads(k0, dt)
+    switches = problem.switch_steps(dt, steps)
+    for s0, s1 in bounds:
+        Y = np.empty((s1 - s0 + 1, 13))
+        Y[0] = y
+        cuts = [s0, *(k for k in switches if s0 < k < s1), s1]
+        for k0, k1 in zip(cuts[:-1], cuts[1:]):
+            loads = problem.active_loads(k0, dt)
 
-        def rhs(_t, y, loads=loads):
-            x, v, q, w_b = y[0:3], y[3:6], y[6:10], y[10:13]
-            R = matrix_from_quat(q)
-            f, tau = problem.wrench(loads, x, R) if loads else (np.zeros(3), np.zeros(3))
-            dw = I_inv @ (R.T @ tau - np.cross(w_b, I_b @ w_b))
-            dq = 0.5 * quat_multiply(q, np.r_[0.0, w_b])
-            return np.concatenate([v, f / M + g, dq, dw])
+            def rhs(_t, y, loads=loads):
+                x, v, q, w_b = y[0:3], y[3:6], y[6:10], y[10:13]
+                R = matrix_from_quat(q)
+                f, tau = problem.wrench(loads, x, R) if loads else (np.zeros(3), np.zeros(3))
+                dw = I_inv @ (R.T @ tau - np.cross(w_b, I_b @ w_b))
+                dq = 0.5 * quat_multiply(q, np.r_[0.0, w_b])
+                return np.concatenate([v, f / M + g, dq, dw])
 
-        t_eval = t_all[k0:k1 + 1]
-        sol = solve_ivp(rhs, (t_eval[0], t_eval[-1]), Y[k0], method="DOP853", t_eval=t_eval,
-                        rtol=rtol, atol=atol)
-        if not sol.success:
-            raise RuntimeError(f"numerical truth failed: {sol.message}")
-        Y[k0 + 1:k1 + 1] = sol.y.T[1:]
-        Y[k1, 6:10] = quat_normalize(Y[k1, 6:10])
-    q = quat_normalize(Y[:, 6:10])
-    w = np.einsum("nij,nj->ni", matrix_from_quat(q), Y[:, 10:13])
-    return Trajectory(t_all, Y[:, 0:3], q, Y[:, 3:6], w)
+            t_eval = np.arange(k0, k1 + 1) * dt
+            sol = solve_ivp(rhs, (t_eval[0], t_eval[-1]), Y[k0 - s0], method="DOP853", t_eval=t_eval,
+                            rtol=rtol, atol=atol)
+            if not sol.success:
+                raise RuntimeError(f"numerical truth failed: {sol.message}")
+            Y[k0 - s0 + 1:k1 - s0 + 1] = sol.y.T[1:]
+            Y[k1 - s0, 6:10] = quat_normalize(Y[k1 - s0, 6:10])
+        y = Y[-1].copy()
+        q = quat_normalize(Y[:, 6:10])
+        w = np.einsum("nij,nj->ni", matrix_from_quat(q), Y[:, 10:13])
+        tr = Trajectory(np.arange(s0, s1 + 1) * dt, Y[:, 0:3], q, Y[:, 3:6], w)
+        yield tr if s0 == 0 else tr.tail(1)

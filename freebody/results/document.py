@@ -99,6 +99,16 @@ def auto_every(n_samples: int) -> int:
     return max(1, -(-(int(n_samples) - 1) // SAVED_SAMPLES))
 
 
+def finite_argmax(a) -> int | None:
+    """The first index of the largest finite value of ``a`` (None if none is finite): the sample a
+    trajectory file keeps of a series' maximum."""
+    a = np.asarray(a, dtype=float)
+    finite = np.isfinite(a)
+    if not finite.any():
+        return None
+    return int(np.argmax(np.where(finite, a, -np.inf)))
+
+
 def saved_indices(n: int, every: int, series=None, diverged_index: int | None = None,
                   orthonormality: np.ndarray | None = None) -> np.ndarray:
     """The sample indices (ascending, int64, shape (K,)) a trajectory file keeps of a run of ``n``
@@ -106,30 +116,48 @@ def saved_indices(n: int, every: int, series=None, diverged_index: int | None = 
     series' maximum (orientation, angular momentum, energy and position errors of
     :class:`freebody.run.metrics.Series`, the orthonormality error; over the whole run and over
     the samples before a divergence) and the two samples around a divergence, so that the figures
-    show every maximum the metrics report and where a run blew up."""
-    picks = [np.arange(0, n, every), [n - 1]]
+    show every maximum the metrics report and where a run blew up (:func:`select_saved`)."""
+    maxima = []
     if every > 1:
         arrays = [] if series is None else [series.orientation_error, series.angular_momentum_error,
                                              series.energy_error, series.position_error]
         if orthonormality is not None:
             arrays.append(orthonormality)
-        ends = [n] if diverged_index is None else [n, max(1, min(diverged_index, n))]
-        for a in arrays:
+        ends = [n] if diverged_index is None else [n, prefix_end(diverged_index, n)]
+        for arr in arrays:
             for end in ends:
-                head = np.asarray(a[:end], dtype=float)
-                finite = np.isfinite(head)
-                if finite.any():
-                    picks.append([int(np.argmax(np.where(finite, head, -np.inf)))])
+                i = finite_argmax(arr[:end])
+                if i is not None:
+                    maxima.append(i)
+    return select_saved(n, every, maxima, diverged_index)
+
+
+def prefix_end(diverged_index: int, n: int) -> int:
+    """The end of the samples "before the divergence" whose maxima a trajectory file keeps (at
+    least the first sample)."""
+    return max(1, min(diverged_index, n))
+
+
+def select_saved(n: int, every: int, maxima, diverged_index: int | None = None) -> np.ndarray:
+    """The rule of :func:`saved_indices` given the indices of the maxima (``maxima``, kept when
+    ``every`` > 1): a run judged in chunks finds them as it goes."""
+    picks = [np.arange(0, n, every), [n - 1]]
+    if every > 1:
+        picks.append(list(maxima))
         if diverged_index is not None:
             picks.append([max(0, min(diverged_index, n - 1) - 1), min(diverged_index, n - 1)])
     return np.unique(np.concatenate([np.asarray(p, dtype=np.int64) for p in picks]))
 
 
 def samples_to_save(tr: Trajectory, truth: Trajectory | None, every: int | None = None, series=None,
-                    diverged_at: float | None = None) -> tuple[Trajectory, Trajectory | None, np.ndarray]:
+                    diverged_at: float | None = None, index: np.ndarray | None = None
+                    ) -> tuple[Trajectory, Trajectory | None, np.ndarray]:
     """(run, truth, sample indices) as a trajectory file stores them: the truth cut to the run's
     samples (a diverged run stops early) without orthonormality, both reduced to the samples of
-    :func:`saved_indices` (``every`` None: :func:`auto_every`)."""
+    :func:`saved_indices` (``every`` None: :func:`auto_every`).  ``index``: ``tr`` and ``truth``
+    are already the saved samples, at these indices (a run judged in chunks keeps no more)."""
+    if index is not None:
+        return tr, None if truth is None else truth.without_orthonormality(), np.asarray(index, np.int64)
     n = len(tr)
     if truth is not None:
         truth = truth.head(n).without_orthonormality()

@@ -98,10 +98,20 @@ def run_estimate(n_runs: int, total_steps: int, max_steps: int, jobs: int) -> Es
     """``n_runs`` runs of ``total_steps`` steps in all (the longest ``max_steps``) on ``jobs``
     workers: each worker holds one run's arrays, this process every run's record."""
     workers = max(1, min(jobs, n_runs))
-    memory = n_runs * tol.RUN_RECORD_BYTES + workers * (max_steps + 1) * tol.RUN_BYTES_PER_STEP
+    memory = n_runs * tol.RUN_RECORD_BYTES + workers * held_samples(max_steps) * tol.RUN_BYTES_PER_STEP
     seconds = (total_steps * tol.SECONDS_PER_STEP + n_runs * tol.SECONDS_PER_RUN) / _parallel(jobs, n_runs)
     return Estimate(f"{n_runs} run{'s' if n_runs != 1 else ''} of up to {max_steps} steps", memory, seconds,
                     "run fewer cases, time steps, engines or integrators, or a shorter --duration")
+
+
+def held_samples(steps: int) -> int:
+    """The samples a worker holds at once for a run of ``steps`` steps: all of them for a run judged
+    whole, one chunk's for a longer one (judged in chunks of JUDGE_CHUNK_STEPS: its memory is
+    bounded by the chunk, not by its length; tolerances.CHUNKED_JUDGING_MIN_STEPS)."""
+    steps = int(steps)
+    if steps > tol.CHUNKED_JUDGING_MIN_STEPS:
+        return tol.JUDGE_CHUNK_STEPS + 1
+    return steps + 1
 
 
 def check_run(specs, jobs: int, force: bool = False) -> Estimate:

@@ -11,22 +11,35 @@ import numpy as np
 
 from ..adapters.base import EngineDiverged, EngineMissing, load_adapter
 from ..adapters.capture import capture_output
-from .judge import TruthCache, finish
-from .records import RunOutput, RunSpec, Simulated, Status, _describe, _identity, _no_trajectory
+from .. import tolerances as tol
+from ..reference_impl.truth import truth_chunks
+from ..results.document import auto_every
+from .judge import RunJudge, TruthCache, _Identification, _VsEngine, finish, stepped_engine_pieces, stepped_map_pieces
+from .metrics import truth_scales
+from .records import RunOutput, RunResult, RunSpec, Simulated, Status, _describe, _identity, _no_trajectory
 
 
-def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: bool = True) -> RunOutput:
+def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: bool = True,
+            save_every: int | None = None) -> RunOutput:
     """Run one spec; never raises for an engine's failure (that is the run's status), even a
     ``sys.exit()`` inside the engine; KeyboardInterrupt is re-raised.
 
     What the engine prints on the C level is captured into the result's ``engine_output``.
+
+    A run of more than :data:`~freebody.tolerances.CHUNKED_JUDGING_MIN_STEPS` steps is stepped and
+    judged chunk by chunk (:func:`_execute_chunked`; memory bounded by the chunk): its RunOutput
+    holds only the samples its trajectory file keeps at stride ``save_every`` (None: automatic,
+    :func:`~freebody.results.document.auto_every`), their indices in ``saved_index``.
     """
     with capture_output() as captured:  # importing an engine may print (pybullet's banner)
         cls = _adapter_class(spec.engine)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         capture = cls.output_capture() if isinstance(cls, type) else capture_output()
         with capture as during:
-            out = _execute(spec, cls, cache, identify_scheme)
+            if chunk_steps(spec.steps) is not None and not isinstance(cls, BaseException):
+                out = _execute_chunked(spec, cls, identify_scheme, save_every)
+            else:
+                out = _execute(spec, cls, cache, identify_scheme)
     captured.lines.extend(during.lines)
     captured.total += during.total
     if captured.total:
@@ -34,8 +47,7 @@ def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: boo
         message = r.message
         if r.status in (Status.FAILED, Status.DIVERGED):
             message = f"{message} [engine printed: {captured.lines[0][:200]}]"
-        out = RunOutput(replace(r, engine_output=captured.summary(), message=message),
-                        out.trajectory, out.truth, out.series)
+        out = replace(out, result=replace(r, engine_output=captured.summary(), message=message))
     return out
 
 
@@ -79,3 +91,99 @@ def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool
     except BaseException as e:  # an engine calling sys.exit() fails its run, not freebody
         return _no_trajectory(base, Status.FAILED, _describe(e), time.perf_counter() - t0, version, settings)
     return finish(spec, sim, cache, identify_scheme, compare_with=cls.compare_with)
+
+
+def chunk_steps(steps: int, min_steps: int | None = None, chunk: int | None = None) -> int | None:
+    """The chunk size (steps) a run of ``steps`` steps is judged in, or None: judged whole (see
+    tolerances.CHUNKED_JUDGING_MIN_STEPS; ``min_steps`` and ``chunk`` default to those constants)."""
+    min_steps = tol.CHUNKED_JUDGING_MIN_STEPS if min_steps is None else min_steps
+    return (tol.JUDGE_CHUNK_STEPS if chunk is None else chunk) if steps > min_steps else None
+
+
+def _execute_chunked(spec: RunSpec, cls, identify_scheme: bool, save_every: int | None,
+                     chunk: int | None = None) -> RunOutput:
+    """:func:`_execute` and :func:`~freebody.run.judge.finish` of a long run, chunk by chunk: a
+    first pass over the truth for its maxima over the run (:class:`~freebody.run.metrics.Scales`),
+    then the engine stepped with ``Adapter.chunks`` and each chunk judged (:class:`RunJudge`)
+    against the truth's chunk (:func:`~freebody.reference_impl.truth.truth_chunks`), the reference
+    maps and their runs from one-ulp starts stepped alongside (identification) as the other
+    engine's run (a ported engine's comparison).  Nothing of the whole run is kept but the samples
+    its trajectory file saves.  The same result as the whole run's to round-off: the numerical
+    truth restarts at the chunk joins (see truth_chunks); a run the engine stops early keeps the
+    samples of the stride of its actual length (a second pass when the automatic stride differs)."""
+    every = save_every if save_every is not None else auto_every(spec.steps + 1)
+    out, n = _run_chunked(spec, cls, identify_scheme, every, chunk)
+    if save_every is None and n is not None and auto_every(n) != every:  # stopped early by the engine
+        out, _ = _run_chunked(spec, cls, identify_scheme, auto_every(n), chunk)
+    return out
+
+
+def _run_chunked(spec: RunSpec, cls, identify_scheme: bool, every: int, chunk: int | None):
+    """(RunOutput, samples judged) of one chunked pass (see :func:`_execute_chunked`)."""
+    pb, dt, steps = spec.problem, spec.dt, spec.steps
+    chunk = chunk or chunk_steps(steps) or tol.JUDGE_CHUNK_STEPS
+    base = _identity(spec)
+    t0 = time.perf_counter()
+    if isinstance(cls, EngineMissing):
+        return _no_trajectory(base, Status.SKIPPED, str(cls), 0.0), None
+    version = settings = adapter = None
+    try:
+        version = cls.engine_version()
+        adapter = cls(pb, dt, spec.integrator, spec.precision)
+        settings = adapter.settings
+    except KeyboardInterrupt:
+        raise
+    except BaseException as e:  # an engine calling sys.exit() fails its run, not freebody
+        return _no_trajectory(base, Status.FAILED, _describe(e), time.perf_counter() - t0, version, settings), None
+    stepping = time.perf_counter() - t0
+    base = _identity(spec, settings)
+    try:
+        scales = None
+        for piece in truth_chunks(pb, dt, steps, chunk):
+            scales = truth_scales(pb, piece).merged(scales)
+    except Exception as e:
+        adapter.close()
+        return _no_trajectory(base, Status.FAILED, f"truth oracle failed: {_describe(e)}", stepping, version,
+                              settings), None
+    scheme = identify_scheme and not spec.is_reference
+    judge = RunJudge(spec, scales, _Identification(spec, stepped_map_pieces(spec, chunk)) if scheme else None,
+                     _VsEngine(spec, cls.compare_with, stepped_engine_pieces(spec, chunk))
+                     if scheme and cls.compare_with else None, every=every)
+    truth = truth_chunks(pb, dt, steps, chunk)
+    pieces = adapter.chunks(steps, chunk)
+    reason, diverged_at = "", None
+    try:
+        while True:
+            t1 = time.perf_counter()
+            try:
+                piece = next(pieces)
+            except StopIteration:
+                break
+            finally:
+                stepping += time.perf_counter() - t1
+            judge.feed(piece, next(truth))
+            del piece  # not held while the next one is stepped
+    except EngineDiverged as e:
+        reason, diverged_at = e.reason, e.t
+        if e.trajectory is not None and len(e.trajectory):
+            judge.feed(e.trajectory, next(truth), diverged_at)
+        elif judge.n:  # no samples of its own: the divergence after the last one
+            judge.engine_diverged, judge.engine_t = judge.n, float(e.t)
+            judge.before[judge.n] = judge.stats
+    except KeyboardInterrupt:
+        raise
+    except BaseException as e:  # an engine calling sys.exit() fails its run, not freebody
+        return _no_trajectory(base, Status.FAILED, _describe(e), time.perf_counter() - t0, version,
+                              adapter.settings), None
+    finally:
+        adapter.close()
+    settings = adapter.settings
+    compile_time = adapter.compile_time_s
+    if judge.n == 0:
+        status = Status.OK if diverged_at is None else Status.DIVERGED
+        return _no_trajectory(base, status, reason, stepping, version, settings, diverged_at), None
+    fields = judge.outcome(reason)
+    result = RunResult(**_identity(spec, settings), **fields, wall_time_s=stepping, engine_version=version,
+                       engine_settings=settings or {}, compile_time_s=compile_time)
+    tr, tr_truth, series, idx = judge.saved()
+    return RunOutput(result, tr, tr_truth, series, saved_index=idx), judge.n

@@ -4,6 +4,8 @@ with its original.  :func:`finish` serves runs stepped one by one and runs stepp
 from __future__ import annotations
 
 import dataclasses
+import itertools
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -16,8 +18,10 @@ from ..reference_impl.integrators import simulate as reference_simulate
 from ..reference_impl.problem import InitialState, Problem
 from ..reference_impl.rotations import geodesic_angle
 from ..reference_impl.truth import truth_trajectory
-from .metrics import (ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE,
-                      ROTATION_ORTHONORMALITY_ERROR_MAX, divergence, summarize)
+from ..results.document import prefix_end, select_saved
+from .metrics import (DIVERGENCE_KINDS, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, ROTATION_ORTHONORMALITY_ERROR_MAX,
+                      STAT_ARRAYS, Scales, Series, SeriesStats, divergence_bounds, divergence_decision,
+                      divergence_firsts, series, truth_scales)
 from .records import RunOutput, RunResult, RunSpec, Simulated, Status, _clean, _describe, _identity, _no_trajectory
 
 # The engines' maps: what an engine integrator plausibly implements (rk4 only for an RK4 of its
@@ -84,7 +88,10 @@ def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bo
            compare_with: str | None = None) -> RunOutput:
     """Judge a simulated run: truth, divergence (the one place it is decided), metrics, scheme
     identification and the comparison with a ported engine's original.  Used for runs stepped one
-    by one (:func:`execute`) and for runs stepped as a batch (``freebody sweep --engine mjx``)."""
+    by one (:func:`execute`) and for runs stepped as a batch (``freebody sweep --engine mjx``).
+
+    The run is judged as one chunk by :class:`RunJudge`, which a long run goes through chunk by
+    chunk (:func:`freebody.run.execute.execute`): the same rules, the same numbers."""
     pb = spec.problem
     base = _identity(spec, sim.settings)
     trajectory, diverged_at, version, settings = sim.trajectory, sim.diverged_at, sim.version, sim.settings
@@ -97,58 +104,256 @@ def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bo
                               settings)
     if trajectory is None or len(trajectory) == 0:
         return _no_trajectory(base, status, message, wall, version, settings, diverged_at)
-    if status == Status.OK:
-        found = divergence(pb, trajectory, truth)
-        if found is not None:
-            diverged_at, message = found
-            status = Status.DIVERGED
-            message = f"diverged at t = {diverged_at:.6g} s: {message}"
-    elif diverged_at is not None:
-        message = f"diverged at t = {diverged_at:.6g} s: {message}"
-    metrics, series = summarize(pb, trajectory, truth)
-    if status == Status.DIVERGED:
-        # metrics past a blow-up are meaningless: keep them up to the divergence only
-        # but for R's orthonormality error: how far it went (its largest finite value, as it
-        # becomes inf/NaN in the end)
-        metrics = {k: (v if k == ROTATION_ORTHONORMALITY_ERROR_MAX else None) for k, v in metrics.items()}
-        if trajectory.orthonormality_error is not None:
-            ortho = trajectory.orthonormality_error[np.isfinite(trajectory.orthonormality_error)]
-            metrics[ROTATION_ORTHONORMALITY_ERROR_MAX] = float(np.max(ortho)) if ortho.size else None
-        metrics.update(_prefix_metrics(pb, trajectory, truth, diverged_at))
-    matches = vs_engine = None
-    if identify_scheme and not spec.is_reference and status == Status.OK:
-        matches = identify(pb, trajectory, spec, cache)
-        if compare_with:
-            vs_engine = compare_with_engine(pb, trajectory, spec, compare_with, cache)
-    final = trajectory.state(-1).as_dict() if status == Status.OK else None
-    result = RunResult(**base, status=status, message=message, metrics=_clean(metrics), final_state=final,
-                       wall_time_s=wall, engine_version=version, engine_settings=settings or {},
-                       matches_reference=matches, diverged_at_s=diverged_at, compile_time_s=compile_time,
-                       vs_engine=vs_engine)
-    return RunOutput(result, trajectory, truth, series)
+    whole_truth, truth = truth, truth.head(len(trajectory))
+    scheme = identify_scheme and not spec.is_reference
+    judge = RunJudge(spec, truth_scales(pb, truth),
+                     _Identification(spec, cached_map_pieces(spec, cache)) if scheme else None,
+                     _VsEngine(spec, compare_with, cached_engine_pieces(spec, cache)) if scheme and compare_with else None)
+    judge.feed(trajectory, truth, diverged_at)
+    out = judge.outcome(sim.reason)
+    result = RunResult(**base, **out, wall_time_s=wall, engine_version=version, engine_settings=settings or {},
+                       compile_time_s=compile_time)
+    return RunOutput(result, trajectory, whole_truth, judge.whole_series)
+
+
+class RunJudge:
+    """Judges one run from its samples, delivered whole (:func:`finish`: one :meth:`feed`) or in
+    consecutive chunks (a long run, :func:`freebody.run.execute.execute`), with the same rules and
+    the same numbers either way: the error series of each chunk scaled by the truth's maxima over
+    the whole run (``scales``, :class:`~freebody.run.metrics.Scales`), running maxima and finals
+    (:class:`~freebody.run.metrics.SeriesStats`), the first sample of each kind of divergence
+    (:func:`~freebody.run.metrics.divergence_decision` decides at the end), the statistics of the
+    samples before each such sample (the ``*_before_divergence`` metrics and the saved samples of a
+    diverged run), scheme identification (:class:`_Identification`) and the comparison with a
+    ported engine's original (:class:`_VsEngine`), both fed only while no divergence is found.
+
+    every : keep the samples a trajectory file saves (:func:`~freebody.results.document.select_saved`
+        with stride ``every``) as the chunks go by (a long run keeps no more); None: keep none
+        (the caller has the whole run).
+    """
+
+    def __init__(self, spec: RunSpec, scales: Scales, identification: "_Identification | None" = None,
+                 vs_engine: "_VsEngine | None" = None, every: int | None = None):
+        self.spec, self.pb, self.scales = spec, spec.problem, scales
+        self.bounds = divergence_bounds(scales)
+        self.identification, self.vs_engine = identification, vs_engine
+        self.stats = SeriesStats()
+        self.firsts: dict[str, int] = {}  # kind of divergence -> global index of its first sample
+        self.times: dict[int, float] = {}  # global index -> t of the divergence samples
+        self.before: dict[int, SeriesStats] = {}  # divergence index d -> statistics of [0, prefix_end(d))
+        self.engine_diverged: int | None = None  # index where the engine reported its blow-up
+        self.engine_t: float | None = None
+        self.truth_max: Scales | None = None  # the truth's maxima over the samples fed
+        self.n = 0
+        self.last: Trajectory | None = None
+        self.whole_series: Series | None = None  # of a run fed in one piece
+        self.every = every
+        self._rows: list = []
+
+    def feed(self, tr: Trajectory, truth: Trajectory, diverged_at: float | None = None) -> None:
+        """The next samples of the run (global indices n, n + 1, ...) and the truth's at them;
+        ``diverged_at``: the engine reported a blow-up at that time (the last piece)."""
+        pb, k0, m = self.pb, self.n, len(tr)
+        if m == 0:
+            return
+        truth = truth.head(m)
+        self.truth_max = truth_scales(pb, truth).merged(self.truth_max)
+        s = series(pb, tr, truth, self.scales)
+        ortho = tr.orthonormality_error
+        new: list[int] = []
+        if diverged_at is not None:
+            d = k0 + int(np.searchsorted(tr.t, diverged_at))
+            self.engine_diverged, self.engine_t = d, float(diverged_at)
+            new.append(d)
+        elif self.engine_diverged is None:
+            wanted = [k for k in DIVERGENCE_KINDS if k not in self.firsts]
+            for kind, i in divergence_firsts(pb, tr, self.bounds, wanted).items():
+                self.firsts[kind] = k0 + i
+                self.times[k0 + i] = float(tr.t[i])
+                new.append(k0 + i)
+        for d in new:
+            if d not in self.before:
+                self.before[d] = self.stats.prefix(s, ortho, k0, prefix_end(d, k0 + m))
+        before = {name: self.stats.maxima[name].best_index for name in STAT_ARRAYS}
+        self.stats.update(s, ortho, k0)
+        if self.every is not None:
+            picks = [np.arange(-(-k0 // self.every) * self.every, k0 + m, self.every), [k0 + m - 1]]
+            picks.append([v.best_index for name, v in self.stats.maxima.items()
+                          if v.best_index is not None and v.best_index != before[name]])
+            for d in new:
+                picks.append(self.before[d].argmax_indices())
+                picks.append([d - 1, d])
+            g = np.unique(np.concatenate([np.asarray(p, dtype=np.int64) for p in picks]))
+            g = g[(g >= k0) & (g < k0 + m)]
+            local = g - k0
+            self._rows.append((g, tr.take(local), truth.take(local),
+                               [getattr(s, a)[local] for a in STAT_ARRAYS[:4]],
+                               (s.angular_momentum_relative, s.energy_relative)))
+        if not self.firsts and self.engine_diverged is None:
+            q = tr.quaternion_wxyz
+            if self.identification is not None:
+                self.identification.update(q)
+            if self.vs_engine is not None:
+                self.vs_engine.update(q)
+        self.whole_series = s if k0 == 0 else None
+        self.n = k0 + m
+        self.last = tr.take(np.array([m - 1]))
+
+    def diverged(self) -> tuple[int, float, str] | None:
+        """(index, t, reason) of the run's divergence found by the harness, or None."""
+        found = divergence_decision(self.firsts, self.bounds)
+        return None if found is None else (found[0], self.times[found[0]], found[1])
+
+    def outcome(self, engine_reason: str = "") -> dict:
+        """The judged fields of the run's RunResult (status, message, metrics, final_state,
+        matches_reference, diverged_at_s, vs_engine)."""
+        status, message, d, diverged_at = Status.OK, "", None, None
+        if self.engine_diverged is not None:
+            status, d, diverged_at = Status.DIVERGED, self.engine_diverged, self.engine_t
+            message = f"diverged at t = {diverged_at:.6g} s: {engine_reason}"
+        else:
+            found = self.diverged()
+            if found is not None:
+                d, diverged_at, why = found
+                status, message = Status.DIVERGED, f"diverged at t = {diverged_at:.6g} s: {why}"
+        self.diverged_index = d
+        momentum_rel, energy_rel = self.truth_max.momentum > 0, self.truth_max.ke > 0
+        metrics = self.stats.metrics(momentum_rel, energy_rel)
+        if status == Status.DIVERGED:
+            # metrics past a blow-up are meaningless: keep them up to the divergence only
+            # but for R's orthonormality error: how far it went (its largest finite value, as it
+            # becomes inf/NaN in the end)
+            metrics = {k: (v if k == ROTATION_ORTHONORMALITY_ERROR_MAX else None) for k, v in metrics.items()}
+            if self.stats.has_orthonormality:
+                metrics[ROTATION_ORTHONORMALITY_ERROR_MAX] = self.stats.maxima["orthonormality_error"].best
+            if d >= 1:
+                head = self.before[d].maxima["orientation_error"].max
+                metrics[ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE] = head
+        ok = status == Status.OK
+        return dict(status=status, message=message, metrics=_clean(metrics),
+                    final_state=self.last.state(0).as_dict() if ok else None,
+                    matches_reference=self.identification.result() if ok and self.identification else None,
+                    vs_engine=self.vs_engine.result() if ok and self.vs_engine else None,
+                    diverged_at_s=diverged_at)
+
+    def saved(self) -> tuple[Trajectory, Trajectory, Series, np.ndarray]:
+        """(run, truth, series, sample indices) at the samples its trajectory file keeps (after
+        :meth:`outcome`; ``every`` given)."""
+        d = self.diverged_index
+        maxima = self.stats.argmax_indices() + (self.before[d].argmax_indices() if d is not None else [])
+        idx = select_saved(self.n, self.every, maxima, d)
+        g = np.concatenate([r[0] for r in self._rows])
+        tr = Trajectory.concatenate([r[1] for r in self._rows])
+        truth = Trajectory.concatenate([r[2] for r in self._rows])
+        values = [np.concatenate([r[3][i] for r in self._rows]) for i in range(4)]
+        _, first = np.unique(g, return_index=True)
+        at = first[np.searchsorted(g[first], idx)]
+        ser = Series(tr.t[at], *(v[at] for v in values), *self._rows[0][4])
+        return tr.take(at), truth.take(at), ser, idx
+
+
+def cached_map_pieces(spec: RunSpec, cache: TruthCache) -> Callable[[str], Iterator]:
+    """The reference maps of a run judged whole: each map's q and round-off spread, whole, from
+    the cache (computed once per (case, dt, steps) group)."""
+    def pieces(name: str):
+        yield (cache.orientation(spec.problem, name, spec.dt, spec.steps),
+               cache.roundoff(spec.problem, name, spec.dt, spec.steps, spec.precision))
+    return pieces
+
+
+def stepped_map_pieces(spec: RunSpec, chunk_steps: int) -> Callable[[str], Iterator]:
+    """The reference maps of a run judged in chunks: each map and its runs from the
+    :func:`perturbed_start` stepped chunk by chunk (the reference adapter continues where it
+    stopped), yielding (q, spread) per chunk; nothing of a whole run is kept."""
+    from ..adapters.reference import map_orientations
+
+    pb, dt, steps = spec.problem, spec.dt, spec.steps
+
+    def pieces(name: str):
+        starts = [perturbed_start(pb, dt, spec.precision, signs) for signs in ULP_SIGN_PATTERNS]
+        others = [map_orientations(pb_u, name, dt_u, steps, chunk_steps) for pb_u, dt_u in starts]
+        for q in map_orientations(pb, name, dt, steps, chunk_steps):
+            spread = np.zeros(len(q))
+            for other in others:
+                spread = _spread_update(spread, q, next(other))
+            yield q, spread
+    return pieces
+
+
+def cached_engine_pieces(spec: RunSpec, cache: TruthCache) -> Callable[[str, str], Iterator]:
+    """Another engine's run of a run judged whole, whole, from the cache."""
+    def pieces(other: str, integrator: str):
+        yield cache.engine_run(spec.problem, other, integrator, spec.dt, spec.steps)
+    return pieces
+
+
+def stepped_engine_pieces(spec: RunSpec, chunk_steps: int) -> Callable[[str, str], Iterator]:
+    """Another engine's run of a run judged in chunks, stepped chunk by chunk."""
+    def pieces(other: str, integrator: str):
+        adapter = load_adapter(other)(spec.problem, spec.dt, integrator)
+        try:
+            yield from adapter.chunks(spec.steps, chunk_steps)
+        finally:
+            adapter.close()
+    return pieces
+
+
+class _VsEngine:
+    """The comparison of a run with another engine's float64 run of the same integrator and dt,
+    chunk by chunk (see :func:`compare_with_engine`)."""
+
+    def __init__(self, spec: RunSpec, other: str, pieces: Callable[[str, str], Iterator]):
+        self.out = {"engine": other, "integrator": spec.integrator, "precision": "float64"}
+        self.message = None
+        self.max = self.final = None
+        self.finite = True
+        self.other = other
+        try:
+            offered = load_adapter(other).offered_integrators()
+            match = [i for i in offered if i.lower() == spec.integrator.lower()]
+            if not match:
+                self.message = f"{other} offers no {spec.integrator}"
+            else:
+                self.pieces = pieces(other, match[0])
+        except KeyboardInterrupt:
+            raise
+        except BaseException as e:  # the other engine's sys.exit() included
+            self.message = f"{other} could not run: {_describe(e)}"
+
+    def update(self, q: np.ndarray) -> None:
+        if self.message is not None:
+            return
+        try:
+            ref = next(self.pieces)
+        except EngineDiverged as e:
+            self.message = f"{self.other} diverged at t = {e.t:.6g} s"
+            return
+        except KeyboardInterrupt:
+            raise
+        except BaseException as e:  # the other engine's sys.exit() included
+            self.message = f"{self.other} could not run: {_describe(e)}"
+            return
+        d = geodesic_angle(ref.quaternion_wxyz, q)
+        self.finite = self.finite and bool(np.all(np.isfinite(d)))
+        m = float(np.max(d)) if len(d) else None
+        self.max = m if self.max is None or m is None else max(self.max, m)
+        if len(d):
+            self.final = float(d[-1])
+
+    def result(self) -> dict:
+        if self.message is not None:
+            return {**self.out, "message": self.message}
+        return {**self.out, "max_orientation_diff_rad": self.max if self.finite else None,
+                "final_orientation_diff_rad": self.final if self.finite else None}
 
 
 def compare_with_engine(pb: Problem, trajectory: Trajectory, spec: RunSpec, other: str,
                         cache: TruthCache) -> dict:
     """How far this run is from ``other`` engine's float64 run of the same integrator and dt (rad):
     e.g. MJX against C MuJoCo.  A missing or failing other engine is said, not raised."""
-    out = {"engine": other, "integrator": spec.integrator, "precision": "float64"}
-    try:
-        offered = load_adapter(other).offered_integrators()
-        match = [i for i in offered if i.lower() == spec.integrator.lower()]
-        if not match:
-            return {**out, "message": f"{other} offers no {spec.integrator}"}
-        ref = cache.engine_run(pb, other, match[0], spec.dt, spec.steps)
-    except EngineDiverged as e:
-        return {**out, "message": f"{other} diverged at t = {e.t:.6g} s"}
-    except KeyboardInterrupt:
-        raise
-    except BaseException as e:  # the other engine's sys.exit() included
-        return {**out, "message": f"{other} could not run: {_describe(e)}"}
-    d = geodesic_angle(ref.quaternion_wxyz, trajectory.quaternion_wxyz)
-    finite = bool(np.all(np.isfinite(d)))
-    return {**out, "max_orientation_diff_rad": float(np.max(d)) if finite else None,
-            "final_orientation_diff_rad": float(d[-1]) if finite else None}
+    vs = _VsEngine(spec, other, cached_engine_pieces(dataclasses.replace(spec, problem=pb), cache))
+    vs.update(trajectory.quaternion_wxyz)
+    return vs.result()
 
 
 def scheme_candidates(integrator: str) -> tuple[str, ...]:
@@ -214,10 +419,16 @@ def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precisi
     for signs in ULP_SIGN_PATTERNS:
         pb_u, dt_u = perturbed_start(pb, dt, precision, signs)
         other = _maps.simulate(pb_u, integrator, dt_u, steps)  # not reference_simulate: no map the cache holds
-        with np.errstate(invalid="ignore"):
-            s = _angle(q_ref, other.quaternion_wxyz)
-        spread = np.maximum(spread, np.where(np.isfinite(s), s, np.pi))
+        spread = _spread_update(spread, q_ref, other.quaternion_wxyz)
     return spread
+
+
+def _spread_update(spread: np.ndarray, q_ref: np.ndarray, q_other: np.ndarray) -> np.ndarray:
+    """The spread (N,) with one more perturbed run's orientations q_other (N, 4) taken in: the
+    largest angle so far, pi where either is not finite."""
+    with np.errstate(invalid="ignore"):
+        s = _angle(q_ref, q_other)
+    return np.maximum(spread, np.where(np.isfinite(s), s, np.pi))
 
 
 def _angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
@@ -234,10 +445,12 @@ def _angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.sqrt(vx * vx + vy * vy + vz * vz), np.abs(w))
 
 
-def roundoff_level(spread: np.ndarray) -> np.ndarray:
+def roundoff_level(spread: np.ndarray, before: float = 0.0) -> np.ndarray:
     """The round-off level (N,) rad at each sample from a map's :func:`roundoff_spread`:
-    max(SCHEME_ROUNDOFF_FACTOR x the spread's running maximum, SCHEME_ROUNDOFF_FLOOR_RAD)."""
-    return np.maximum(tol.SCHEME_ROUNDOFF_FACTOR * np.maximum.accumulate(spread), tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+    max(SCHEME_ROUNDOFF_FACTOR x the spread's running maximum, SCHEME_ROUNDOFF_FLOOR_RAD).
+    ``before``: the spread's maximum over the samples before these (a run judged in chunks)."""
+    running = np.maximum(np.maximum.accumulate(spread), before) if len(spread) else spread
+    return np.maximum(tol.SCHEME_ROUNDOFF_FACTOR * running, tol.SCHEME_ROUNDOFF_FLOOR_RAD)
 
 
 def identification_rule(precision: str = "float64") -> str:
@@ -264,35 +477,81 @@ def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCac
     levels_rad : name -> round-off level at the last sample (rad).
     ratios : name -> max over samples of difference / level (<= 1: reproduces), or None.
     rule : the rule in words.
+
+    The run is taken in as one chunk of :class:`_Identification` (a long run: chunk by chunk).
     """
-    n = len(trajectory)
-    diffs, levels, ratios, kept = {}, {}, {}, {}
-    for name in scheme_candidates(spec.integrator):
-        q_ref = cache.orientation(pb, name, spec.dt, spec.steps)
-        level = roundoff_level(cache.roundoff(pb, name, spec.dt, spec.steps, spec.precision))
-        levels[name] = float(level[-1])
-        if len(q_ref) < n:
-            diffs[name] = ratios[name] = None
-            continue
-        with np.errstate(invalid="ignore"):
-            d = _angle(q_ref[:n], trajectory.quaternion_wxyz)
-        if not np.all(np.isfinite(d)):
-            diffs[name] = ratios[name] = None
-            continue
-        diffs[name], ratios[name] = float(np.max(d)), float(np.max(d / level[:n]))
-        kept[name] = (q_ref[:n], level[:n])
-    reproduced = sorted((k for k, r in ratios.items() if r is not None and r <= 1.0), key=ratios.get)
-    tie: list[str] = []
-    for name in reproduced:  # the best first; each further map within round-off of those kept
-        if all(_within(kept[name], kept[other]) for other in tie):
-            tie.append(name)
-    tie = [k for k in SCHEME_CANDIDATES if k in tie]
-    finite = {k: v for k, v in diffs.items() if v is not None}
-    closest = tie[0] if tie else (min(finite, key=finite.get) if finite else None)
-    return {"integrator": tie[0] if tie else None, "closest": closest,
-            "max_orientation_diff_rad": finite.get(closest), "candidates": diffs,
-            "threshold_rad": levels.get(closest), "indistinguishable": tie, "levels_rad": levels,
-            "ratios": ratios, "rule": identification_rule(spec.precision)}
+    ident = _Identification(dataclasses.replace(spec, problem=pb), cached_map_pieces(
+        dataclasses.replace(spec, problem=pb), cache))
+    ident.update(trajectory.quaternion_wxyz)
+    return ident.result()
+
+
+class _Identification:
+    """Scheme identification (:func:`identify`) of a run taken in chunk by chunk: per candidate
+    map, the running maxima of its difference and of the difference over its round-off level, the
+    level's running base, and for each pair of maps that still reproduce the run whether they are
+    within their levels of each other so far (the tie).  ``pieces(name)`` yields the map's q and
+    round-off spread over the same samples as each chunk of the run."""
+
+    def __init__(self, spec: RunSpec, pieces: Callable[[str], Iterator]):
+        self.spec = spec
+        self.names = scheme_candidates(spec.integrator)
+        self.pieces = {name: pieces(name) for name in self.names}
+        self.spread_max = {name: 0.0 for name in self.names}
+        self.levels: dict[str, float] = {}
+        self.diffs: dict[str, float | None] = {name: 0.0 for name in self.names}
+        self.ratios: dict[str, float | None] = {name: 0.0 for name in self.names}
+        self.within = {pair: True for pair in itertools.combinations(self.names, 2)}
+        self.n = 0
+
+    def update(self, q: np.ndarray) -> None:
+        """The run's orientations q (m, 4) of its next m samples."""
+        n = len(q)
+        kept = {}
+        for name in self.names:
+            q_ref, spread = next(self.pieces[name])
+            level = roundoff_level(spread, self.spread_max[name])
+            if len(spread):
+                self.spread_max[name] = max(self.spread_max[name], float(np.max(spread)))
+                self.levels[name] = float(level[-1])
+            if self.ratios[name] is None:
+                continue
+            if len(q_ref) < n:
+                self.diffs[name] = self.ratios[name] = None
+                continue
+            with np.errstate(invalid="ignore"):
+                d = _angle(q_ref[:n], q)
+            if not np.all(np.isfinite(d)):
+                self.diffs[name] = self.ratios[name] = None
+                continue
+            if n:
+                self.diffs[name] = max(self.diffs[name], float(np.max(d)))
+                self.ratios[name] = max(self.ratios[name], float(np.max(d / level[:n])))
+            if self.ratios[name] <= 1.0:
+                kept[name] = (q_ref[:n], level[:n])
+        for a, b in self.within:  # the tie: only maps that still reproduce the run matter
+            if self.within[(a, b)] and a in kept and b in kept:
+                self.within[(a, b)] = _within(kept[a], kept[b])
+        self.n += n
+
+    def result(self) -> dict:
+        ratios, diffs, levels = self.ratios, self.diffs, self.levels
+        reproduced = sorted((k for k, r in ratios.items() if r is not None and r <= 1.0), key=ratios.get)
+        tie: list[str] = []
+        for name in reproduced:  # the best first; each further map within round-off of those kept
+            if all(self.within[_pair(self.names, name, other)] for other in tie):
+                tie.append(name)
+        tie = [k for k in SCHEME_CANDIDATES if k in tie]
+        finite = {k: v for k, v in diffs.items() if v is not None}
+        closest = tie[0] if tie else (min(finite, key=finite.get) if finite else None)
+        return {"integrator": tie[0] if tie else None, "closest": closest,
+                "max_orientation_diff_rad": finite.get(closest), "candidates": dict(diffs),
+                "threshold_rad": levels.get(closest), "indistinguishable": tie, "levels_rad": dict(levels),
+                "ratios": dict(ratios), "rule": identification_rule(self.spec.precision)}
+
+
+def _pair(names: tuple, a: str, b: str) -> tuple[str, str]:
+    return (a, b) if names.index(a) < names.index(b) else (b, a)
 
 
 def _within(a: tuple, b: tuple) -> bool:
@@ -300,13 +559,3 @@ def _within(a: tuple, b: tuple) -> bool:
     round-off levels at every sample."""
     with np.errstate(invalid="ignore"):
         return bool(np.all(_angle(a[0], b[0]) <= np.maximum(a[1], b[1])))
-
-
-def _prefix_metrics(pb, trajectory, truth, t_div) -> dict:
-    """Metrics over the samples before the divergence (keys suffixed ``_before_divergence``)."""
-    n = int(np.searchsorted(trajectory.t, t_div))
-    if n < 1:
-        return {}
-    head = trajectory.head(n).without_orthonormality()
-    m, _ = summarize(pb, head, truth)
-    return {ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE: m[ORIENTATION_ERROR_MAX]}

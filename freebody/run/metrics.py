@@ -14,6 +14,7 @@ from ..reference_impl.problem import Problem
 from ..reference_impl.rotations import geodesic_angle
 from .. import tolerances as tol
 from ..numbers import finite_or_none
+from ..results.document import finite_argmax
 
 # The keys of a results.json ``metrics`` dict, defined once (they are the schema: every module
 # names a metric through these constants).
@@ -69,18 +70,53 @@ def energies(problem: Problem, tr: Trajectory) -> tuple[np.ndarray, np.ndarray]:
     return ke, ke + potential_energy(M, problem.gravity, tr.position)
 
 
-def series(problem: Problem, tr: Trajectory, truth: Trajectory) -> Series:
+@dataclass(frozen=True)
+class Scales:
+    """The truth's maxima over the samples judged, which the relative errors (:class:`Series`) and
+    the divergence bounds (:func:`divergence_bounds`) are scaled by: kinetic energy (J), |w|
+    (rad/s), |v| (m/s), |L| (kg m^2/s).  A run judged in chunks takes them from a first pass over
+    its whole truth (:func:`truth_scales` of each piece, :meth:`merged`)."""
+
+    ke: float
+    omega: float
+    velocity: float
+    momentum: float
+
+    def merged(self, other: "Scales | None") -> "Scales":
+        """The maxima of both (NaN propagates, as ``np.max`` does)."""
+        if other is None:
+            return self
+        return Scales(*(float(np.maximum(a, b)) for a, b in zip(
+            (self.ke, self.omega, self.velocity, self.momentum),
+            (other.ke, other.omega, other.velocity, other.momentum))))
+
+
+def truth_scales(problem: Problem, truth: Trajectory) -> Scales:
+    """The :class:`Scales` of a truth's samples (one or more)."""
+    ke_true, _ = energies(problem, truth)
+    L_true = angular_momentum(problem.body.I_body, truth.quaternion_wxyz, truth.angular_velocity)
+    return Scales(float(np.max(ke_true)), float(np.max(np.linalg.norm(truth.angular_velocity, axis=1))),
+                  float(np.max(np.linalg.norm(truth.linear_velocity, axis=1))),
+                  float(np.max(np.linalg.norm(L_true, axis=-1))))
+
+
+def series(problem: Problem, tr: Trajectory, truth: Trajectory, scales: Scales | None = None) -> Series:
+    """The error series of the samples of ``tr`` against the truth's (its first len(tr) samples),
+    relative errors scaled by ``scales`` (None: the truth's own, :func:`truth_scales`): a run
+    judged in chunks passes its whole truth's, so that each chunk's series are the whole run's."""
     n = len(tr)
     truth = truth.head(n)
+    if scales is None:
+        scales = truth_scales(problem, truth)
     I_b = problem.body.I_body
     ori = geodesic_angle(truth.quaternion_wxyz, tr.quaternion_wxyz)
     L = angular_momentum(I_b, tr.quaternion_wxyz, tr.angular_velocity)
     L_true = angular_momentum(I_b, truth.quaternion_wxyz, truth.angular_velocity)
-    L_scale = float(np.max(np.linalg.norm(L_true, axis=-1)))
+    L_scale = scales.momentum
     dL = np.linalg.norm(L - L_true, axis=-1)
     _, E = energies(problem, tr)
-    ke_true, E_true = energies(problem, truth)
-    E_scale = float(np.max(ke_true))
+    _, E_true = energies(problem, truth)
+    E_scale = scales.ke
     dE = np.abs(E - E_true)
     return Series(
         t=tr.t, orientation_error=ori,
@@ -94,20 +130,157 @@ def series(problem: Problem, tr: Trajectory, truth: Trajectory) -> Series:
 def summarize(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[dict, Series]:
     """The results.json ``metrics`` dict (maxima and finals) and the per-sample series."""
     s = series(problem, tr, truth)
-    m = {
-        ORIENTATION_ERROR_MAX: _max(s.orientation_error),
-        ORIENTATION_ERROR_FINAL: finite_or_none(s.orientation_error[-1]),
-        ANGULAR_MOMENTUM_ERROR_MAX_REL: _max(s.angular_momentum_error) if s.angular_momentum_relative else None,
-        ENERGY_ERROR_MAX_REL: _max(s.energy_error) if s.energy_relative else None,
-        POSITION_ERROR_MAX: _max(s.position_error),
-        ROTATION_ORTHONORMALITY_ERROR_MAX: (
-            None if tr.orthonormality_error is None else _max(tr.orthonormality_error)),
+    stats = SeriesStats()
+    stats.update(s, tr.orthonormality_error, 0)
+    return stats.metrics(s.angular_momentum_relative, s.energy_relative), s
+
+
+class RunningMax:
+    """The maximum of an array seen piece by piece: ``max`` as ``np.max`` gives it over all the
+    pieces (NaN propagates; None before any sample), and ``best``/``best_index`` the largest finite
+    value and its first index (:func:`~freebody.results.document.finite_argmax`; None if none)."""
+
+    __slots__ = ("max", "best", "best_index")
+
+    def __init__(self):
+        self.max = None
+        self.best = None
+        self.best_index = None
+
+    def update(self, a: np.ndarray, k0: int) -> "RunningMax":
+        """Take the samples ``a`` (global indices k0, k0 + 1, ...) in; returns self."""
+        if len(a) == 0:
+            return self
+        m = np.max(a)
+        self.max = m if self.max is None else np.maximum(self.max, m)
+        i = finite_argmax(a)
+        if i is not None and (self.best is None or a[i] > self.best):
+            self.best, self.best_index = float(a[i]), k0 + i
+        return self
+
+    def copy(self) -> "RunningMax":
+        c = RunningMax()
+        c.max, c.best, c.best_index = self.max, self.best, self.best_index
+        return c
+
+
+# the arrays SeriesStats follows, in the order of saved_indices
+STAT_ARRAYS = ("orientation_error", "angular_momentum_error", "energy_error", "position_error",
+               "orthonormality_error")
+
+
+class SeriesStats:
+    """Running maxima (:class:`RunningMax`) of a run's error series and of its orthonormality
+    error, and the final orientation error: what its ``metrics`` are made of, whether the run is
+    judged whole (one update) or in chunks (one update per chunk, same numbers)."""
+
+    def __init__(self):
+        self.maxima = {name: RunningMax() for name in STAT_ARRAYS}
+        self.final_orientation = None
+        self.has_orthonormality = False
+        self.n = 0
+
+    def update(self, s: Series, orthonormality: np.ndarray | None, k0: int) -> None:
+        for name in STAT_ARRAYS[:4]:
+            self.maxima[name].update(getattr(s, name), k0)
+        if orthonormality is not None:
+            self.has_orthonormality = True
+            self.maxima["orthonormality_error"].update(orthonormality, k0)
+        if len(s.orientation_error):
+            self.final_orientation = s.orientation_error[-1]
+        self.n = k0 + len(s.orientation_error)
+
+    def prefix(self, s: Series, orthonormality: np.ndarray | None, k0: int, end: int) -> "SeriesStats":
+        """These statistics extended by the samples of this chunk (global index k0 on) before the
+        global index ``end``: the statistics of the samples [0, end)."""
+        out = SeriesStats()
+        out.maxima = {k: v.copy() for k, v in self.maxima.items()}
+        out.final_orientation, out.has_orthonormality, out.n = self.final_orientation, self.has_orthonormality, self.n
+        m = max(0, end - k0)
+        if m:
+            head = Series(s.t[:m], *(getattr(s, a)[:m] for a in STAT_ARRAYS[:4]),
+                          s.angular_momentum_relative, s.energy_relative)
+            out.update(head, None if orthonormality is None else orthonormality[:m], k0)
+        return out
+
+    def metrics(self, momentum_relative: bool, energy_relative: bool) -> dict:
+        """The results.json ``metrics`` of the samples taken in (relative errors where the truth's
+        scale is not zero, else the absolute ones under their own keys)."""
+        mx = {k: (finite_or_none(v.max) if v.max is not None else None) for k, v in self.maxima.items()}
+        m = {
+            ORIENTATION_ERROR_MAX: mx["orientation_error"],
+            ORIENTATION_ERROR_FINAL: finite_or_none(self.final_orientation),
+            ANGULAR_MOMENTUM_ERROR_MAX_REL: mx["angular_momentum_error"] if momentum_relative else None,
+            ENERGY_ERROR_MAX_REL: mx["energy_error"] if energy_relative else None,
+            POSITION_ERROR_MAX: mx["position_error"],
+            ROTATION_ORTHONORMALITY_ERROR_MAX: mx["orthonormality_error"] if self.has_orthonormality else None,
+        }
+        if not momentum_relative:
+            m[ANGULAR_MOMENTUM_ERROR_MAX_ABS] = mx["angular_momentum_error"]
+        if not energy_relative:
+            m[ENERGY_ERROR_MAX_ABS] = mx["energy_error"]
+        return m
+
+    def argmax_indices(self) -> list[int]:
+        """The first index of each array's largest finite value (those that have one)."""
+        return [v.best_index for v in self.maxima.values() if v.best_index is not None]
+
+
+# --- divergence ----------------------------------------------------------------------------------
+# The kinds of divergence, each found at its first sample: the state not finite, then the bounds
+# in this order, and a matrix's R no rotation (see divergence()).
+DIVERGENCE_KINDS = ("not finite", "energy", "omega", "velocity", "orthonormality")
+
+
+def divergence_bounds(scales: Scales) -> dict[str, float]:
+    """The bounds of a run's state, from the truth's maxima over the run: kinetic energy (J),
+    |w| (rad/s), |v| (m/s) (see :func:`divergence`)."""
+    return {
+        "energy": tol.DIVERGENCE_ENERGY_FACTOR * max(scales.ke, tol.DIVERGENCE_ENERGY_FLOOR_J),
+        "omega": tol.DIVERGENCE_OMEGA_FACTOR * max(scales.omega, tol.DIVERGENCE_OMEGA_FLOOR_RAD_S),
+        "velocity": tol.DIVERGENCE_VELOCITY_FACTOR * max(scales.velocity, tol.DIVERGENCE_VELOCITY_FLOOR_M_S),
     }
-    if not s.angular_momentum_relative:
-        m[ANGULAR_MOMENTUM_ERROR_MAX_ABS] = _max(s.angular_momentum_error)
-    if not s.energy_relative:
-        m[ENERGY_ERROR_MAX_ABS] = _max(s.energy_error)
-    return m, s
+
+
+def divergence_firsts(problem: Problem, tr: Trajectory, bounds: dict[str, float],
+                      wanted=DIVERGENCE_KINDS) -> dict[str, int]:
+    """{kind: index in ``tr`` of its first sample} of each of the ``wanted`` kinds of
+    :data:`DIVERGENCE_KINDS` that occurs in these samples."""
+    found = {}
+    if "not finite" in wanted:
+        arrays = (tr.position, tr.quaternion_wxyz, tr.linear_velocity, tr.angular_velocity)
+        bad = ~np.all(np.concatenate([np.isfinite(a) for a in arrays], axis=1), axis=1)
+        found["not finite"] = _first(bad)
+    if "energy" in wanted:
+        ke, _ = energies(problem, tr)
+        found["energy"] = _first(ke > bounds["energy"])
+    if "omega" in wanted:
+        found["omega"] = _first(np.linalg.norm(tr.angular_velocity, axis=1) > bounds["omega"])
+    if "velocity" in wanted:
+        found["velocity"] = _first(np.linalg.norm(tr.linear_velocity, axis=1) > bounds["velocity"])
+    if "orthonormality" in wanted and tr.orthonormality_error is not None:
+        found["orthonormality"] = _first(tr.orthonormality_error > tol.DIVERGENCE_ORTHONORMALITY_MAX)
+    return {k: v for k, v in found.items() if v is not None}
+
+
+def divergence_decision(firsts: dict[str, int], bounds: dict[str, float]) -> tuple[int, str] | None:
+    """(index, reason) of a run's divergence from the first index of each kind over the whole run
+    (:func:`divergence_firsts`), or None: a non-finite state first wherever it is, else the first
+    bound exceeded in the order energy, |w|, |v|; a matrix's R no rotation when earlier than that."""
+    found = None
+    if "not finite" in firsts:
+        found = (firsts["not finite"], "state is not finite (NaN or inf)")
+    else:
+        for kind, why in (("energy", f"kinetic energy beyond {bounds['energy']:.3g} J"),
+                          ("omega", f"|w| beyond {bounds['omega']:.3g} rad/s"),
+                          ("velocity", f"|v| beyond {bounds['velocity']:.3g} m/s")):
+            if kind in firsts:
+                found = (firsts[kind], why)
+                break
+    ortho = firsts.get("orthonormality")
+    if ortho is not None and (found is None or ortho < found[0]):
+        return (ortho, f"R is no rotation: ||R^T R - 1||_F beyond {tol.DIVERGENCE_ORTHONORMALITY_MAX:g}")
+    return found
 
 
 def divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[float, str] | None:
@@ -115,42 +288,13 @@ def divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[flo
 
     Bounds: kinetic energy > DIVERGENCE_ENERGY_FACTOR x the truth's max KE, |w| or |v| beyond
     their factor x the truth's max, and for an integrated rotation matrix ||R^T R - 1||_F beyond
-    DIVERGENCE_ORTHONORMALITY_MAX (see :mod:`freebody.tolerances`): the earlier of that and the others.
+    DIVERGENCE_ORTHONORMALITY_MAX (see :mod:`freebody.tolerances`): the earlier of that and the
+    others.  A non-finite state is reported first wherever it is; then the bounds in the order
+    energy, |w|, |v| (:func:`divergence_decision`, which a run judged in chunks applies as well).
     """
-    found = _state_divergence(problem, tr, truth)
-    ortho = None if tr.orthonormality_error is None else _first(
-        tr.orthonormality_error > tol.DIVERGENCE_ORTHONORMALITY_MAX)
-    if ortho is not None and (found is None or tr.t[ortho] < found[0]):
-        return (float(tr.t[ortho]), f"R is no rotation: ||R^T R - 1||_F beyond "
-                                    f"{tol.DIVERGENCE_ORTHONORMALITY_MAX:g}")
-    return found
-
-
-def _state_divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[float, str] | None:
-    """The state's part of :func:`divergence`: non-finite samples first, then the bounds."""
-    n = len(tr)
-    truth = truth.head(n)
-    arrays = (tr.position, tr.quaternion_wxyz, tr.linear_velocity, tr.angular_velocity)
-    bad = ~np.all(np.concatenate([np.isfinite(a) for a in arrays], axis=1), axis=1)
-    first = _first(bad)
-    if first is not None:
-        return float(tr.t[first]), "state is not finite (NaN or inf)"
-    ke, _ = energies(problem, tr)
-    ke_true, _ = energies(problem, truth)
-    ke_bound = tol.DIVERGENCE_ENERGY_FACTOR * max(float(np.max(ke_true)), tol.DIVERGENCE_ENERGY_FLOOR_J)
-    w_norm = np.linalg.norm(tr.angular_velocity, axis=1)
-    w_bound = tol.DIVERGENCE_OMEGA_FACTOR * max(float(np.max(np.linalg.norm(truth.angular_velocity, axis=1))),
-                                                tol.DIVERGENCE_OMEGA_FLOOR_RAD_S)
-    v_norm = np.linalg.norm(tr.linear_velocity, axis=1)
-    v_bound = tol.DIVERGENCE_VELOCITY_FACTOR * max(float(np.max(np.linalg.norm(truth.linear_velocity, axis=1))),
-                                                   tol.DIVERGENCE_VELOCITY_FLOOR_M_S)
-    for mask, why in ((ke > ke_bound, f"kinetic energy beyond {ke_bound:.3g} J"),
-                      (w_norm > w_bound, f"|w| beyond {w_bound:.3g} rad/s"),
-                      (v_norm > v_bound, f"|v| beyond {v_bound:.3g} m/s")):
-        first = _first(mask)
-        if first is not None:
-            return float(tr.t[first]), why
-    return None
+    bounds = divergence_bounds(truth_scales(problem, truth.head(len(tr))))
+    found = divergence_decision(divergence_firsts(problem, tr, bounds), bounds)
+    return None if found is None else (float(tr.t[found[0]]), found[1])
 
 
 def _first(mask: np.ndarray) -> int | None:

@@ -16,6 +16,8 @@ import traceback
 from dataclasses import dataclass, field
 from enum import StrEnum
 
+import numpy as np
+
 from ..adapters.base import REFERENCE_ENGINE
 from ..adapters.capture import cap_line
 from ..numbers import finite_or_none
@@ -103,12 +105,19 @@ class RunResult:
 
 @dataclass(frozen=True)
 class RunOutput:
-    """A run's result with its arrays (for the Python API, trajectory files and reports)."""
+    """A run's result with its arrays (for the Python API, trajectory files and reports).
+
+    saved_index : None when the arrays are the whole run; a run judged in chunks (longer than
+        ``tolerances.CHUNKED_JUDGING_MIN_STEPS``) keeps only the samples its trajectory file saves,
+        and these are their indices (int64 (K,)): ``trajectory``, ``truth`` and ``series`` hold
+        those K samples.
+    """
 
     result: RunResult
     trajectory: Trajectory | None
     truth: Trajectory | None
     series: Series | None
+    saved_index: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
-from .execute import execute
+from .execute import chunk_steps, execute
+from .judge import finish as judge
 
 from .records import RunOutput, RunSpec
 from .sharedcache import GroupTruthCache
@@ -67,6 +68,8 @@ class RunTask:
     ship_saved : return the thinned arrays to save (when the caller writes the file itself).
     keep_arrays : return the full trajectory, truth and error series.
     share : write the group's truths to the shared store (pointless for a group of one run).
+    simulated : (Simulated, compare_with) of a run stepped elsewhere (a batch: ``freebody sweep``),
+        only to be judged here, against the group's truth and reference maps; None: execute it.
     """
 
     index: int
@@ -77,11 +80,13 @@ class RunTask:
     ship_saved: bool = False
     keep_arrays: bool = False
     share: bool = True
+    simulated: tuple | None = None
 
 
 def samples_for_saving(out: RunOutput, every: int | None):
     """(trajectory, truth, sample indices) of a finished run as its trajectory file keeps them."""
-    return samples_to_save(out.trajectory, out.truth, every, out.series, out.result.diverged_at_s)
+    return samples_to_save(out.trajectory, out.truth, every, out.series, out.result.diverged_at_s,
+                           out.saved_index)
 
 
 def finish(out: RunOutput, task: RunTask) -> dict:
@@ -103,7 +108,7 @@ def finish(out: RunOutput, task: RunTask) -> dict:
         elif task.ship_saved:
             payload["saved"] = samples_for_saving(out, task.save_every)
     if task.keep_arrays:
-        payload["arrays"] = (out.trajectory, out.truth, out.series)
+        payload["arrays"] = (out.trajectory, out.truth, out.series, out.saved_index)
     payload["result"] = result
     return payload
 
@@ -136,7 +141,14 @@ class Runner:
         self._prepare_truth(spec)
         if self.started is not None:
             self.started(task.index)
-        out = execute(spec, self.cache)
+        if task.simulated is None:
+            out = execute(spec, self.cache, save_every=task.save_every)
+        else:  # stepped in a batch: judged as execute() judges a run it stepped
+            import numpy as np
+
+            sim, compare_with = task.simulated
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                out = judge(spec, sim, self.cache, compare_with=compare_with)
         self.cache.offer(spec, out)
         return finish(out, task)
 
@@ -151,7 +163,8 @@ class Runner:
 
         try:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"), capture_output():
-                self.cache.get(spec.problem, spec.dt, spec.steps)
+                if chunk_steps(spec.steps) is None:  # a long run computes its truth chunk by chunk
+                    self.cache.get(spec.problem, spec.dt, spec.steps)
         except Exception:
             pass
 
