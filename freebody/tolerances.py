@@ -190,6 +190,10 @@ RUN_BYTES_PER_STEP = 9 * 14 * 8
 # default suite (at most 100,000 steps) on that path.  100,000 steps a chunk keep the per-chunk
 # overhead (numpy calls, the 28 reference runs of identification resumed) below 1% of the work.
 CHUNKED_JUDGING_MIN_STEPS = 200_000
+# The engine-equivalent maps (reference_impl.engine_maps) are integrated whole, not continued chunk
+# by chunk: scheme identification compares them with runs of at most this many steps only, so that
+# a long run's memory stays bounded by its chunk (their whole runs, 16 streams of q, would not).
+ENGINE_MAP_CANDIDATES_MAX_STEPS = 200_000
 JUDGE_CHUNK_STEPS = 100_000
 # What the freebody process keeps per run (the spec, the result, results.json being written):
 # measured 12.4 KB per run (2000 runs of 2 steps) at the peak.

@@ -156,7 +156,7 @@ def test_plan_shares_truths_within_a_group_and_orders_groups_largest_first():
         producers = {t.run.spec.integrator: t.index for t in members if t.run.spec.engine == "reference"}
         for t in members:
             if t.run.spec.engine == "mujoco":
-                assert {producers[n] for n in SCHEME_CANDIDATES} <= t.deps
+                assert {producers[n] for n in SHAREABLE_REFERENCES} <= t.deps
 
 
 def test_plan_never_makes_the_truth_wait_for_its_own_group():

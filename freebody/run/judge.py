@@ -13,6 +13,7 @@ from .. import tolerances as tol
 from ..adapters.base import EngineDiverged, load_adapter
 from ..reference_impl import integrators as _maps
 from ..reference_impl.conventions import Trajectory
+from ..reference_impl.engine_maps import ENGINE_MAPS
 from ..reference_impl.integrators import INTEGRATORS
 from ..reference_impl.integrators import simulate as reference_simulate
 from ..reference_impl.problem import InitialState, Problem
@@ -28,8 +29,11 @@ from .records import RunOutput, RunResult, RunSpec, Simulated, Status, _clean, _
 # own); the self-checks bound an engine by these (:func:`engine_schemes`).
 ENGINE_SCHEMES = ("semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro")
 # Reference maps an engine run is compared with (scheme identification): every reference
-# integrator, the engines' maps first (a tie is named by its first map in this order).
-SCHEME_CANDIDATES = (*ENGINE_SCHEMES, "rk4", *(n for n in INTEGRATORS if n not in (*ENGINE_SCHEMES, "rk4")))
+# integrator, the engines' maps first (a tie is named by its first map in this order), then the
+# engine-equivalent maps (reference_impl.engine_maps: MuJoCo 4 RK4, MuJoCo 3 / MJX RK4, PyBullet
+# maximal, DART), each one engine's exact scheme.
+SCHEME_CANDIDATES = (*ENGINE_SCHEMES, "rk4", *(n for n in INTEGRATORS if n not in (*ENGINE_SCHEMES, "rk4")),
+                     *ENGINE_MAPS)
 
 
 class TruthCache:
@@ -356,9 +360,14 @@ def compare_with_engine(pb: Problem, trajectory: Trajectory, spec: RunSpec, othe
     return vs.result()
 
 
-def scheme_candidates(integrator: str) -> tuple[str, ...]:
+def scheme_candidates(integrator: str, steps: int = 0) -> tuple[str, ...]:
     """The reference maps an engine run with this integrator is compared with: every reference
-    integrator, whatever the engine calls its integrator (a scheme is identified, not assumed)."""
+    integrator, whatever the engine calls its integrator (a scheme is identified, not assumed),
+    and the engine-equivalent maps, except for a run of more than ENGINE_MAP_CANDIDATES_MAX_STEPS
+    steps: those maps are not continued chunk by chunk yet, and holding their whole runs would undo
+    the bounded memory of a run judged in chunks."""
+    if steps > tol.ENGINE_MAP_CANDIDATES_MAX_STEPS:
+        return tuple(n for n in SCHEME_CANDIDATES if n not in ENGINE_MAPS)
     return SCHEME_CANDIDATES
 
 
@@ -495,7 +504,7 @@ class _Identification:
 
     def __init__(self, spec: RunSpec, pieces: Callable[[str], Iterator]):
         self.spec = spec
-        self.names = scheme_candidates(spec.integrator)
+        self.names = scheme_candidates(spec.integrator, spec.steps)
         self.pieces = {name: pieces(name) for name in self.names}
         self.spread_max = {name: 0.0 for name in self.names}
         self.levels: dict[str, float] = {}
