@@ -135,8 +135,14 @@ def test_cli_sweep_writes_report_and_files(tmp_path, capsys):
     (["--duration", "0.001"], "--duration"),
     (["--max-spin", "nan"], "--max-spin"),
     (["--engine", "nosuch"], "--engine"),
+    (["--jobs", "0"], "--jobs"),
+    (["--jobs", "two"], "--jobs"),
 ])
 def test_cli_sweep_bad_input_is_one_line(argv, needle, tmp_path, capsys):
-    assert main(["sweep", "--out", str(tmp_path), *argv]) == 2
+    try:
+        code = main(["sweep", "--out", str(tmp_path), *argv])
+    except SystemExit as e:  # argparse reports its own errors
+        code = e.code
+    assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and needle in err[0]

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from .. import tolerances as tol
 from ..errors import InputError
-from .argtypes import nonnegative_int as _nonneg_int, positive_float as _positive_float, writable_folder
+from .argtypes import (nonnegative_int as _nonneg_int, positive_float as _positive_float,
+                       positive_int as _positive_int, writable_folder)
 
 DEFAULT_OUT = "reports/sweep"
 
@@ -39,6 +40,9 @@ def add_parser(sub) -> None:
                    help="gravity (0, 0, -9.81) on half the bodies (mixed, default), all or none")
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory (default {DEFAULT_OUT})")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--jobs", type=_positive_int, metavar="N",
+                   help="worker processes running runs in parallel, each run isolated, as for freebody "
+                        "run (default: the number of cores); the numbers do not depend on it")
     p.add_argument("--force-large", action="store_true",
                    help="start even when the estimated memory exceeds the memory available")
 
@@ -49,6 +53,7 @@ def run(args) -> int:
     from ..input.casefile import check_step_count
     from ..run import Status, select_engines
     from ..run.budget import check_sweep
+    from ..run.suite import default_jobs
     from ..tools.sweep import SweepSettings, first_body_specs, sweep
 
     if args.count < 1:
@@ -71,7 +76,7 @@ def run(args) -> int:
                 force=args.force_large)
     out_dir = writable_folder(args.out, "--out")  # before the runs, so that none is lost
     out = sweep(settings, engines, args.integrator, out_dir, progress=not args.quiet,
-                precisions=args.precision)
+                precisions=args.precision, jobs=args.jobs or default_jobs())
     print(out.report)
     print(f"\nresults: {Path(args.out) / 'sweep.json'}")
     return 1 if any(r["status"] == Status.FAILED for r in out.document["runs"]) else 0

@@ -74,13 +74,14 @@ def _needed_references(spec: RunSpec) -> tuple[str, ...]:
     """Reference maps that scheme identification compares this run with (as runner.identify)."""
     if spec.is_reference:
         return ()
-    return scheme_candidates(spec.integrator)
+    return scheme_candidates(spec.integrator, spec.steps)
 
 
-def plan(specs: list[RunSpec], **run_options) -> list[Task]:
+def plan(specs: list[RunSpec], simulated: dict | None = None, **run_options) -> list[Task]:
     """Tasks of every spec, ordered: groups (problem, dt, steps) by estimated cost, largest first;
     in a group the run that computes the truth (its first reference run, else its first run), then
-    the reference runs that produce identification maps, then the rest, in spec order.  ``run_options`` go to every :class:`~freebody.run.worker.RunTask`."""
+    the reference runs that produce identification maps, then the rest, in spec order.  ``run_options`` go to every :class:`~freebody.run.worker.RunTask`;
+    ``simulated`` (spec index -> (Simulated, compare_with)) to the runs stepped already (judged only)."""
     keys: dict[int, str] = {}
     groups: dict[tuple, list[int]] = {}
     for i, s in enumerate(specs):
@@ -101,7 +102,8 @@ def plan(specs: list[RunSpec], **run_options) -> list[Task]:
                   [i for i in members if i not in producers.values() and i != first]
         for i in ordered:
             deps = frozenset(producers[n] for n in _needed_references(specs[i]) if n in producers)
-            tasks.append(Task(RunTask(i, group[0], specs[i], share=len(members) > 1, **run_options),
+            tasks.append(Task(RunTask(i, group[0], specs[i], share=len(members) > 1,
+                                      simulated=(simulated or {}).get(i), **run_options),
                               group, deps, None if i == first else first))
     return tasks
 

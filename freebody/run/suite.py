@@ -41,7 +41,8 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
               progress: bool = True, save_every: int | None = None,
               on_result: Callable[[RunOutput], None] | None = None, *, jobs: int = 1,
               timeout: float | None = None, executor: str = "local", scheduler: str | None = None,
-              keep_arrays: bool = False, isolate: bool = True) -> tuple[dict, list[RunOutput]]:
+              keep_arrays: bool = False, isolate: bool = True,
+              simulated: dict[int, tuple] | None = None) -> tuple[dict, list[RunOutput]]:
     """Execute every spec, write results.json and the trajectory files to ``out_dir`` (if not None).
 
     jobs : worker processes (executor "local"); each run is isolated in a worker process whatever
@@ -54,6 +55,8 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
         each maximum error and of a divergence (None: at most SAVED_SAMPLES evenly spaced, see
         :func:`freebody.results.document.auto_every`; 1: every sample); metrics use every step.
     keep_arrays : give each RunOutput its trajectory, truth and series (else only ``result``).
+    simulated : spec index -> (Simulated, the engine it ports or None) for runs already stepped
+        (``freebody sweep``'s batches): only judged, with the truths and reference maps of their group.
 
     Returns (the results.json document, the RunOutputs in spec order); ``on_result`` is called
     with each RunOutput as it finishes.  The numbers do not depend on ``jobs`` or ``executor``.
@@ -80,7 +83,8 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
         folder = OutputFolder(out_path) if out_path is not None else None
         finished = _Finished(folder, versions, bar, on_result)
         try:
-            tasks = plan(specs, save_dir=str(folder.trajectory_dir) if folder is not None and local else None,
+            tasks = plan(specs, simulated=simulated,
+                         save_dir=str(folder.trajectory_dir) if folder is not None and local else None,
                          save_every=save_every, ship_saved=folder is not None and not local,
                          keep_arrays=keep_arrays)
             _execute_tasks(tasks, finished.add, executor=executor, jobs=jobs, timeout=timeout,

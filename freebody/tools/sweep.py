@@ -39,7 +39,7 @@ from ..results.document import document_header
 from ..results.io import read_json, write_json_atomic, write_text_atomic
 from ..adapters.base import is_available, load_adapter
 from ..adapters.capture import capture_output
-from ..run import STATUSES, RunSpec, Simulated, Status, TruthCache, execute, expand, finish
+from ..run import STATUSES, RunSpec, Simulated, Status, expand
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX,
                            POSITION_ERROR_MAX, ROTATION_ORTHONORMALITY_ERROR_MAX)
 from ..run.progress import ProgressDisplay
@@ -248,38 +248,49 @@ def first_body_specs(settings: SweepSettings, engines: list[str], integrators: l
 # --- running ------------------------------------------------------------------------------------
 
 def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[str] | None = None,
-               progress: bool = True, precisions: list[str] | None = None) -> list[dict]:
+               progress: bool = True, precisions: list[str] | None = None, *, jobs: int = 1,
+               isolate: bool = True) -> list[dict]:
     """Run every body on every selected engine and integrator at the sweep's time steps.
 
-    Engines whose adapter steps many bodies at once (``supports_batch()``; mjx: one ``jax.vmap``-ped
-    batch per integrator, precision, dt and horizon) do so; the others run body by body.  Every run is judged by
-    :func:`freebody.run.judge.finish`, so a batched run's result is that of the same run alone.
+    The runs go through :func:`freebody.run.suite.run_specs`, the executor of ``freebody run``:
+    ``jobs`` isolated worker processes (``isolate=False``: this process, for debugging), the runs
+    of one body at one dt sharing its truth and reference maps (:mod:`freebody.run.sharedcache`).
+    Engines whose adapter steps many bodies at once (``supports_batch()``; mjx: one
+    ``jax.vmap``-ped batch per integrator, precision, dt and horizon) do so first, in this
+    process; their runs are then judged in the workers like the others, so a batched run's result
+    is that of the same run alone.  The numbers do not depend on ``jobs``.
     Returns the runs as results.json ``runs`` entries (in body, dt, engine, integrator order), without
     the per-run ``engine_settings`` (reproduce a run with ``freebody run`` to see them).
     """
+    from ..run import interrupts
+    from ..run.suite import check_options, run_specs
+
+    check_options(jobs, None, None, "local", None, isolate)  # before any batch is stepped
     extra = {"precisions": precisions} if precisions else {}
     specs = expand([b.problem for b in bodies], engines, integrators, None, None, **extra)
     batched = _batched_outputs(specs, progress)
-    by_case: dict[str, list[RunSpec]] = {}
-    for s in specs:
-        by_case.setdefault(s.problem.name, []).append(s)
-    bar = ProgressDisplay(len(bodies), "bodies", enabled=progress, every=len(bodies) // 10)
+    simulated = {i: batched[id(s)] for i, s in enumerate(specs) if id(s) in batched}
+    bar = ProgressDisplay(len(specs), "runs", enabled=progress, every=len(specs) // 10)
     counts = {s: 0 for s in STATUSES}
+
+    def shown(out) -> None:
+        r = out.result
+        counts[r.status] += 1
+        bar.update(", ".join(f"{n} {s}" for s, n in counts.items() if n)
+                   + f"  ({r.case} {r.engine}/{r.integrator})")
+
+    try:
+        _, outputs = run_specs(specs, None, engines, progress=False, on_result=shown, jobs=jobs,
+                               isolate=isolate, simulated=simulated)
+    except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: the CLI exits with its code
+        bar.note(f"{interrupts.describe(e)}: {bar.done} of {bar.total} runs finished; nothing written")
+        raise
     runs = []
-    for body in bodies:
-        cache = TruthCache()  # one body at a time: its truth and reference maps, then freed
-        for spec in by_case.get(body.problem.name, []):
-            if id(spec) in batched:
-                sim, compare_with = batched[id(spec)]
-                out = finish(spec, sim, cache, compare_with=compare_with)
-            else:
-                out = execute(spec, cache)
-            run = out.result.to_json()
-            run.pop("engine_settings", None)
-            run.pop("trajectory", None)
-            counts[run["status"]] += 1
-            runs.append(run)
-        bar.update(", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"  ({body.problem.name})")
+    for out in outputs:
+        run = out.result.to_json()
+        run.pop("engine_settings", None)
+        run.pop("trajectory", None)
+        runs.append(run)
     return runs
 
 
@@ -306,7 +317,8 @@ def _batch_classes(engines, progress: bool) -> dict[str, type]:
 def _batched_outputs(specs: list[RunSpec], progress: bool) -> dict[int, tuple[Simulated, str | None]]:
     """Step the runs of batch-capable engines (``supports_batch()``) as one batch per (engine,
     integrator, precision, dt, steps) with the adapter class's ``simulate_batch``; id(spec) ->
-    (its Simulated, the engine it ports).  A batch that cannot run leaves its runs to ``execute``."""
+    (its Simulated, the engine it ports).  A batch that cannot run leaves its runs to be stepped one
+    by one."""
     classes = _batch_classes((s.engine for s in specs), progress)
     groups: dict[tuple, list[RunSpec]] = {}
     for s in specs:
@@ -413,15 +425,19 @@ class SweepOutcome:
 
 def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | None = None,
           out_dir: Path | None = None, progress: bool = True, precisions: list[str] | None = None,
-          on_bodies: Callable[[list[SweepBody]], None] | None = None) -> SweepOutcome:
-    """Draw the bodies, run them, reduce; write sweep.json, sweep.txt and worst/*.toml to out_dir."""
+          on_bodies: Callable[[list[SweepBody]], None] | None = None, *, jobs: int = 1,
+          isolate: bool = True) -> SweepOutcome:
+    """Draw the bodies, run them (``jobs`` worker processes, see :func:`run_bodies`), reduce; write
+    sweep.json, sweep.txt and worst/*.toml to out_dir.  The documents do not depend on ``jobs``
+    (apart from the wall times)."""
     from ..run.suite import engine_versions
 
     t0 = time.perf_counter()
     bodies = random_bodies(settings)
     if on_bodies:
         on_bodies(bodies)
-    runs = run_bodies(bodies, engines, integrators, progress=progress, precisions=precisions)
+    runs = run_bodies(bodies, engines, integrators, progress=progress, precisions=precisions, jobs=jobs,
+                      isolate=isolate)
     summary = summarize_runs(runs)
     worst = worst_cases(summary, runs)
     texts = {b.problem.name: b.toml for b in bodies}
