@@ -153,6 +153,26 @@ def bullet_matrix_from_quat(q):
 
 
 @jit
+def _quat_from_matrix_about(m, i):
+    """The quaternion (wxyz) of a rotation matrix with no positive trace, from its largest diagonal
+    entry i (Shoemake's branch, as Bullet's getRotation and Eigen both compute it; they differ only
+    in how they pick i)."""
+    j = (i + 1) % 3
+    k = (i + 2) % 3
+    t = math.sqrt(m[i][i] - m[j][j] - m[k][k] + 1.0)
+    qi = 0.5 * t
+    t = 0.5 / t
+    qw = (m[k][j] - m[j][k]) * t
+    qj = (m[j][i] + m[i][j]) * t
+    qk = (m[k][i] + m[i][k]) * t
+    if i == 0:
+        return (qw, qi, qj, qk)
+    if i == 1:
+        return (qw, qk, qi, qj)
+    return (qw, qj, qk, qi)
+
+
+@jit
 def bullet_quat_from_matrix(m):
     """engine_maps.bullet_quat_from_matrix (btMatrix3x3::getRotation), wxyz."""
     trace = m[0][0] + m[1][1] + m[2][2]
@@ -165,19 +185,7 @@ def bullet_quat_from_matrix(m):
         i = 2 if m[1][1] < m[2][2] else 1
     else:
         i = 2 if m[0][0] < m[2][2] else 0
-    j = (i + 1) % 3
-    k = (i + 2) % 3
-    s = math.sqrt(m[i][i] - m[j][j] - m[k][k] + 1.0)
-    qi = s * 0.5
-    s = 0.5 / s
-    qw = (m[k][j] - m[j][k]) * s
-    qj = (m[j][i] + m[i][j]) * s
-    qk = (m[k][i] + m[i][k]) * s
-    if i == 0:
-        return (qw, qi, qj, qk)
-    if i == 1:
-        return (qw, qk, qi, qj)
-    return (qw, qj, qk, qi)
+    return _quat_from_matrix_about(m, i)
 
 
 @jit
@@ -267,19 +275,7 @@ def _eigen_quat_from_matrix(m):
         i = 1
     if m[2][2] > m[i][i]:
         i = 2
-    j = (i + 1) % 3
-    k = (j + 1) % 3
-    t = math.sqrt(m[i][i] - m[j][j] - m[k][k] + 1.0)
-    qi = 0.5 * t
-    t = 0.5 / t
-    qw = (m[k][j] - m[j][k]) * t
-    qj = (m[j][i] + m[i][j]) * t
-    qk = (m[k][i] + m[i][k]) * t
-    if i == 0:
-        return (qw, qi, qj, qk)
-    if i == 1:
-        return (qw, qk, qi, qj)
-    return (qw, qj, qk, qi)
+    return _quat_from_matrix_about(m, i)
 
 
 @jit
