@@ -4,7 +4,7 @@
 """
 from __future__ import annotations
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 
 def run_case(case, engine: str = "reference", integrator: str | None = None, dt: float | None = None,
