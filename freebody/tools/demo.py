@@ -257,7 +257,7 @@ def _plot_orthonormality(data: dict, out_dir: Path) -> Path:
 
 def _plot_convergence(conv: dict, convergence_duration: float, out_dir: Path) -> Path:
     """Max orientation error against dt (log-log) per scheme of convergence_data, slopes in the legend."""
-    fig, ax = _figure(size=(10, 7.5))
+    fig, ax = _figure()  # 16:9, like every slide of the demo
     ax = ax[0, 0]
     for name in LECTURE_SCHEMES:
         c = conv[name]
