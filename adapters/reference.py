@@ -23,7 +23,8 @@ from ..reference_impl.conventions import Trajectory
 from ..reference_impl.integrators import INTEGRATORS, _initial, simulate
 from .base import Adapter
 
-_QUAT_SCHEMES = {"euler-quat": _c.EULER_QUAT, "symplectic-euler": _c.SYMPLECTIC_EULER, "rk4": _c.RK4}
+# euler-quat, symplectic-euler, rk4, implicit-midpoint, rkmk4: on (x, q, p, L) with I_b^-1
+_QUAT_SCHEMES = _c.QUAT_SCHEMES
 # the maps stepped from the adapter's state (the others: integrated whole, handed out in pieces)
 CONTINUED = ("euler-matrix", "euler-matrix-gs", "semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro",
              *_QUAT_SCHEMES)
@@ -53,6 +54,10 @@ def _continue_quat(scheme, k0, x, q, p, L, dt, steps, M, I_inv, g, loads, out_x,
             x, q, p, L = _c.euler_quat_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
         elif scheme == _c.SYMPLECTIC_EULER:
             x, q, p, L = _c.symplectic_euler_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
+        elif scheme == _c.IMPLICIT_MIDPOINT:
+            x, q, p, L = _c.implicit_midpoint_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
+        elif scheme == _c.RKMK4:
+            x, q, p, L = _c.rkmk4_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
         else:
             x, q, p, L = _c.rk4_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
         _c._put(out_x, i + 1, x)

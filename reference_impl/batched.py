@@ -716,7 +716,8 @@ def simulate_batch(integrator: str, mass, I_body, position, quaternion_wxyz, lin
     """Integrate B free bodies at once with the named reference integrator.
 
     integrator : a name of :data:`BATCHED_INTEGRATORS` (every integrator of
-        ``integrators.INTEGRATORS`` but symplectic-splitting, which is not batched).
+        ``integrators.INTEGRATORS`` but symplectic-splitting, implicit-midpoint and rkmk4, which are not
+        batched).
     mass : float or ndarray, shape (B,), kg.
     I_body : ndarray, shape (3, 3) or (B, 3, 3), kg m^2, about the COM, body frame.
     position : ndarray, shape (B, 3) or (3,), COM, world, m.

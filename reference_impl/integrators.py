@@ -28,12 +28,20 @@ Integrators (``INTEGRATORS[name]``):
   McLachlan 1997): the free rotation split into exactly solved rotations (a sphere's about L, then
   corrections about principal axes), composed symmetrically, the loads' impulses kick-drift-kick.
   Second order, symplectic, time-reversible, L exact torque-free, energy error bounded (no drift).
+- ``implicit-midpoint`` (:mod:`lie_integrators`, Hairer, Lubich & Wanner): the implicit midpoint
+  rule on the body momentum Pi (Euler's equations), solved by Newton, the orientation by the Cayley
+  map of the midpoint body rate, the loads' impulses kick-drift-kick.  Second order,
+  time-reversible; torque-free it keeps L exactly and the energy to round-off.
+- ``rkmk4`` (:mod:`lie_integrators`, Munthe-Kaas 1998/1999): classic RK4 on (x, p, L) and the
+  Runge-Kutta-Munthe-Kaas method (exponential map, dexp^-1) for q; loads at every stage as ``rk4``.
+  Fourth order; L exact torque-free, energy drifts at O(h^4).
 
 Loads are held constant over a step (every RK4 stage sees the same active set; a load's torque
 arm is evaluated at the stage's state).
 
 Each scheme is one numpy function of a step (``euler_matrix_step``, ``euler_quat_step``,
-``symplectic_euler_step``, ``rk4_step``, ``semi_implicit_step``, ``splitting.splitting_step``): this
+``symplectic_euler_step``, ``rk4_step``, ``semi_implicit_step``, ``splitting.splitting_step``,
+``lie_integrators.implicit_midpoint_step``, ``lie_integrators.rkmk4_step``): this
 module is the readable reference.  :func:`simulate` runs the same maps compiled (:mod:`compiled`: scalar loops, numba),
 150 to 600 times faster; ``simulate(..., compiled=False)`` runs the numpy loops here, which
 the compiled maps are tested against step by step (``tests/test_compiled_maps.py``).
@@ -50,6 +58,7 @@ from .dynamics import Wrench, rigid_body_derivative, wrench_function
 from .problem import Problem
 from .rotations import (gram_schmidt, matrix_from_quat, nearest_rotation, orthonormality_error,
                         quat_from_matrix, quat_from_rotvec, quat_multiply, quat_normalize, skew)
+from .lie_integrators import implicit_midpoint_step, rkmk4_step
 from .splitting import principal_frame, splitting_step
 
 
@@ -195,11 +204,13 @@ def _simulate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool) 
 
 
 _QUAT_STEPS = {"euler-quat": euler_quat_step, "symplectic-euler": symplectic_euler_step, "rk4": rk4_step,
-               "symplectic-splitting": splitting_step}
+               "symplectic-splitting": splitting_step, "implicit-midpoint": implicit_midpoint_step,
+               "rkmk4": rkmk4_step}
 
 
 def _simulate_quat(problem: Problem, dt: float, steps: int, scheme: str) -> Trajectory:
-    """euler-quat, symplectic-euler, rk4 and symplectic-splitting: all on (x, q, p, L)."""
+    """euler-quat, symplectic-euler, rk4, symplectic-splitting, implicit-midpoint and rkmk4: all on
+    (x, q, p, L)."""
     M, I_b, I_inv, x, q, _, p, L, _, _ = _initial(problem)
     wrench = wrench_function(problem, dt)
     g = problem.gravity
@@ -255,6 +266,13 @@ INTEGRATORS: dict[str, Integrator] = {
         Integrator("symplectic-splitting", 2, False,
                    "symplectic splitting: exact rotations about L and principal axes (Strang), loads kick-drift-kick",
                    lambda pb, dt, n: _simulate_quat(pb, dt, n, "symplectic-splitting")),
+        Integrator("implicit-midpoint", 2, False,
+                   "implicit midpoint rule on the body momentum (Newton), q by Cayley, loads kick-drift-kick; "
+                   "energy and L conserved torque-free",
+                   lambda pb, dt, n: _simulate_quat(pb, dt, n, "implicit-midpoint")),
+        Integrator("rkmk4", 4, False,
+                   "Runge-Kutta-Munthe-Kaas 4: classic RK4 on (x, p, L), q on the rotation group (dexp^-1)",
+                   lambda pb, dt, n: _simulate_quat(pb, dt, n, "rkmk4")),
     ]
 }
 
@@ -262,7 +280,7 @@ INTEGRATORS: dict[str, Integrator] = {
 def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled: bool = True) -> Trajectory:
     """Integrate ``problem`` for ``steps`` steps of ``dt`` with the named integrator.
 
-    compiled : True (default): the compiled scalar maps of :mod:`compiled` (0.1-0.6 us a step);
+    compiled : True (default): the compiled scalar maps of :mod:`compiled` (0.1-1.1 us a step);
         False: the numpy loops of this module (about 75 us a step), the readable reference they are
         tested against.  Both give the same trajectory to rounding.
 
@@ -283,4 +301,4 @@ def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled:
 
 __all__ = ["Integrator", "INTEGRATORS", "simulate", "integrate_euler_matrix", "matrix_outputs",
            "euler_matrix_step", "euler_quat_step", "symplectic_euler_step", "rk4_step",
-           "semi_implicit_step", "splitting_step", "Wrench"]
+           "semi_implicit_step", "splitting_step", "implicit_midpoint_step", "rkmk4_step", "Wrench"]
