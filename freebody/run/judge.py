@@ -29,11 +29,12 @@ from .records import RunOutput, RunResult, RunSpec, Simulated, Status, _clean, _
 # own); the self-checks bound an engine by these (:func:`engine_schemes`).
 ENGINE_SCHEMES = ("semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro")
 # Reference maps an engine run is compared with (scheme identification): every reference
-# integrator, the engines' maps first (a tie is named by its first map in this order), then the
-# engine-equivalent maps (reference_impl.engine_maps: MuJoCo 4 RK4, MuJoCo 3 / MJX RK4, PyBullet
-# maximal, DART), each one engine's exact scheme.
-SCHEME_CANDIDATES = (*ENGINE_SCHEMES, "rk4", *(n for n in INTEGRATORS if n not in (*ENGINE_SCHEMES, "rk4")),
-                     *ENGINE_MAPS)
+# integrator and every engine-equivalent map (reference_impl.engine_maps: MuJoCo 4 RK4, MuJoCo 3 /
+# MJX RK4, PyBullet maximal, DART).  A tie is named by its first map in this order: the engines'
+# semi-implicit maps, rk4, the engine-equivalent maps (each one engine's exact scheme), then the
+# other reference integrators (textbook schemes no engine is known to use).
+SCHEME_CANDIDATES = (*ENGINE_SCHEMES, "rk4", *ENGINE_MAPS,
+                     *(n for n in INTEGRATORS if n not in (*ENGINE_SCHEMES, "rk4")))
 
 
 class TruthCache:
