@@ -46,7 +46,7 @@ from numba import njit, objmode
 
 from . import rotations
 from .conventions import Trajectory
-from .lie_integrators import MIDPOINT_MAX_ITERATIONS, MIDPOINT_RTOL, RKMK4_B, RKMK4_C
+from .lie_integrators import MIDPOINT_MAX_ITERATIONS, MIDPOINT_RTOL, RK4_B, RK4_C
 from .problem import Problem
 
 __all__ = ["Loads", "loads_of", "simulate_compiled", "wrench", "euler_matrix_step", "euler_quat_step",
@@ -490,7 +490,15 @@ def rk4_step(k, x, q, p, L, dt, M, I_inv, g, loads):
 def semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro):
     """The engines' map on (x, q, v, w_b), w_b in the body frame: explicit or linearised implicit
     gyroscopic term, then v, x, and q+ = q Exp(h w_b+)."""
-    R = matrix_from_quat(q)
+    x, v, w_b = semi_implicit_velocities(k, x, matrix_from_quat(q), v, w_b, dt, M, I_b, I_inv, g, loads,
+                                         implicit_gyro)
+    q = quat_normalize(quat_multiply(q, quat_from_rotvec(scale(dt, w_b))))
+    return x, q, v, w_b
+
+
+@jit
+def semi_implicit_velocities(k, x, R, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro):
+    """integrators.semi_implicit_velocities: (x+, v+, w_b+) at the orientation R."""
     f, tau = wrench(k, x, R, loads)
     tau_b = matvec(transpose(R), tau)
     rhs = sub(tau_b, cross(w_b, matvec(I_b, w_b)))
@@ -501,8 +509,7 @@ def semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gy
         w_b = add(w_b, scale(dt, matvec(I_inv, rhs)))
     v = add(v, scale(dt, add(div(f, M), g)))
     x = add(x, scale(dt, v))
-    q = quat_normalize(quat_multiply(q, quat_from_rotvec(scale(dt, w_b))))
-    return x, q, v, w_b
+    return x, v, w_b
 
 
 @jit
@@ -611,8 +618,8 @@ def _rkmk_stage(k, x, q, p, L, dt, c, d, K, M, I_inv, g, loads):
 
 @jit
 def _rkmk_sum(y, dt, a, b, c, e):
-    """y + h (b_1 a + b_2 b + b_3 c + b_4 e) in RKMK4_B's order of operations."""
-    b1, b2, b3, b4 = RKMK4_B
+    """y + h (b_1 a + b_2 b + b_3 c + b_4 e) in RK4_B's order of operations."""
+    b1, b2, b3, b4 = RK4_B
     return add(y, scale(dt, add(add(add(scale(b1, a), scale(b2, b)), scale(b3, c)), scale(b4, e))))
 
 
@@ -621,11 +628,11 @@ def rkmk4_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     """lie_integrators.rkmk4_step: classic RK4 on (x, p, L), RKMK4 on q; loads at every stage."""
     d1 = _rkmk_slopes(k, x, q, p, L, M, I_inv, g, loads)
     K1 = d1[1]
-    d2, K2 = _rkmk_stage(k, x, q, p, L, dt, RKMK4_C[0], d1, K1, M, I_inv, g, loads)
-    d3, K3 = _rkmk_stage(k, x, q, p, L, dt, RKMK4_C[1], d2, K2, M, I_inv, g, loads)
-    d4, K4 = _rkmk_stage(k, x, q, p, L, dt, RKMK4_C[2], d3, K3, M, I_inv, g, loads)
-    u = scale(dt, add(add(add(scale(RKMK4_B[0], K1), scale(RKMK4_B[1], K2)), scale(RKMK4_B[2], K3)),
-                      scale(RKMK4_B[3], K4)))
+    d2, K2 = _rkmk_stage(k, x, q, p, L, dt, RK4_C[0], d1, K1, M, I_inv, g, loads)
+    d3, K3 = _rkmk_stage(k, x, q, p, L, dt, RK4_C[1], d2, K2, M, I_inv, g, loads)
+    d4, K4 = _rkmk_stage(k, x, q, p, L, dt, RK4_C[2], d3, K3, M, I_inv, g, loads)
+    u = scale(dt, add(add(add(scale(RK4_B[0], K1), scale(RK4_B[1], K2)), scale(RK4_B[2], K3)),
+                      scale(RK4_B[3], K4)))
     return (_rkmk_sum(x, dt, d1[0], d2[0], d3[0], d4[0]), quat_normalize(quat_multiply(quat_from_rotvec(u), q)),
             _rkmk_sum(p, dt, d1[2], d2[2], d3[2], d4[2]), _rkmk_sum(L, dt, d1[3], d2[3], d3[3], d4[3]))
 

@@ -16,11 +16,12 @@ import numpy as np
 
 from .compiled import (_put, add, cross, div, dot, jit, loads_of, mat, mat_add, mat_scale, mat_sub,
                        matmul, matrix_from_quat, matvec, quat_from_rotvec, quat_multiply, scale,
-                       scale4, skew, sub, transpose, vec, wrench)
+                       scale4, semi_implicit_velocities, skew, sub, transpose, vec, wrench)
 from .conventions import Trajectory
 from .engine_maps import (BULLET_ANGULAR_MOTION_THRESHOLD, BULLET_SERIES_BELOW, BULLET_SIMD_EPSILON,
                           DART_EXPMAP_SERIES_BELOW, DEXPINV_SERIES_BELOW, ENGINE_MAPS, MJ_MINVAL,
-                          RK4_B, dart_log_map as _numpy_dart_log_map, principal_frame)
+                          dart_log_map as _numpy_dart_log_map, principal_frame)
+from .lie_integrators import RK4_B
 from .problem import Problem
 from .rotations import matrix_from_quat as _numpy_matrix_from_quat, quat_conjugate
 
@@ -293,14 +294,9 @@ def dart_log_map(R):
 @jit
 def explicit_gyro_truncated_exp_step(k, x, phi, v, w_b, dt, M, I_b, I_inv, g, loads):
     """engine_maps.explicit_gyro_truncated_exp_step (DART)."""
-    h = dt
     R = dart_exp_map_rot(phi)
-    f, tau = wrench(k, x, R, loads)
-    rhs = sub(matvec(transpose(R), tau), cross(w_b, matvec(I_b, w_b)))
-    w_b = add(w_b, scale(h, matvec(I_inv, rhs)))
-    v = add(v, scale(h, add(div(f, M), g)))
-    x = add(x, scale(h, v))
-    phi = dart_log_map(matmul(R, dart_exp_map_rot(scale(h, w_b))))
+    x, v, w_b = semi_implicit_velocities(k, x, R, v, w_b, dt, M, I_b, I_inv, g, loads, False)
+    phi = dart_log_map(matmul(R, dart_exp_map_rot(scale(dt, w_b))))
     return x, phi, v, w_b
 
 

@@ -46,7 +46,8 @@ import numpy as np
 
 from .conventions import Trajectory
 from .dynamics import Wrench, wrench_function
-from .integrators import Integrator
+from .integrators import Integrator, semi_implicit_velocities
+from .lie_integrators import RK4_B, RK4_C  # the classic tableau: MuJoCo's RK4_A subdiagonal and RK4_B
 from .problem import Problem
 from .rotations import matrix_from_quat, quat_conjugate, quat_from_matrix, quat_from_rotvec, quat_multiply, skew
 
@@ -71,10 +72,6 @@ BULLET_SIMD_EPSILON = float(np.finfo(float).eps)  # SIMD_EPSILON in double preci
 # DART's EPSILON_EXPMAP_THETA (dart/math/Geometry.cpp): expMapRot's series below this angle (rad).
 DART_EXPMAP_SERIES_BELOW = 1.0e-3
 
-# Classic RK4: stage i starts from X_0 moved by h c_i times stage i-1's slope (MuJoCo's RK4_A, whose
-# only non-zero entries are its subdiagonal), and the step combines the slopes with weights B.
-RK4_C = (0.5, 0.5, 1.0)
-RK4_B = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
 
 
 # --- MuJoCo RK4 ----------------------------------------------------------------------------------
@@ -414,13 +411,9 @@ def explicit_gyro_truncated_exp_step(k: int, x, phi, v, w_b, dt: float, M: float
     enters as R^T tau with R = expMapRot(phi) (DART turns a world torque and force into its body
     frame with its transform).
     """
-    h = dt
     R = dart_exp_map_rot(phi)
-    f, tau = wrench(k, x, R)
-    w_b = w_b + h * (I_inv @ (R.T @ tau - np.cross(w_b, I_b @ w_b)))
-    v = v + h * (f / M + g)
-    x = x + h * v
-    phi = dart_log_map(R @ dart_exp_map_rot(h * w_b))
+    x, v, w_b = semi_implicit_velocities(k, x, R, v, w_b, dt, M, I_b, I_inv, g, wrench)
+    phi = dart_log_map(R @ dart_exp_map_rot(dt * w_b))
     return x, phi, v, w_b
 
 

@@ -154,7 +154,17 @@ def semi_implicit_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g,
     w_b+ = w_b + h I^-1 (tau_b - w_b x I w_b) (explicit gyroscopic term) or, with
     ``implicit_gyro``, w_b+ = w_b + J^-1 h (tau_b - w_b x I w_b), J = I + h ([w_b] I - [I w_b]);
     then v+ = v + h (f/M + g), x+ = x + h v+, q+ = q Exp(h w_b+)."""
-    R = matrix_from_quat(q)
+    x, v, w_b = semi_implicit_velocities(k, x, matrix_from_quat(q), v, w_b, dt, M, I_b, I_inv, g, wrench,
+                                         implicit_gyro)
+    q = quat_normalize(quat_multiply(q, quat_from_rotvec(dt * w_b)))
+    return x, q, v, w_b
+
+
+def semi_implicit_velocities(k: int, x, R, v, w_b, dt: float, M: float, I_b, I_inv, g, wrench: Wrench,
+                             implicit_gyro: bool = False):
+    """The velocity half of :func:`semi_implicit_step` at the orientation R (3, 3) body -> world:
+    (x+, v+, w_b+), the orientation update left to the caller (DART's map, engine_maps, forms R
+    and R+ its own way)."""
     f, tau = wrench(k, x, R)
     tau_b = R.T @ tau
     rhs = tau_b - np.cross(w_b, I_b @ w_b)
@@ -165,8 +175,7 @@ def semi_implicit_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g,
         w_b = w_b + dt * (I_inv @ rhs)
     v = v + dt * (f / M + g)
     x = x + dt * v
-    q = quat_normalize(quat_multiply(q, quat_from_rotvec(dt * w_b)))
-    return x, q, v, w_b
+    return x, v, w_b
 
 
 # --- whole runs, one Python loop over the steps --------------------------------------------------
@@ -301,4 +310,5 @@ def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled:
 
 __all__ = ["Integrator", "INTEGRATORS", "simulate", "integrate_euler_matrix", "matrix_outputs",
            "euler_matrix_step", "euler_quat_step", "symplectic_euler_step", "rk4_step",
-           "semi_implicit_step", "splitting_step", "implicit_midpoint_step", "rkmk4_step", "Wrench"]
+           "semi_implicit_step", "semi_implicit_velocities", "splitting_step", "implicit_midpoint_step",
+           "rkmk4_step", "Wrench"]

@@ -67,7 +67,7 @@ from .dynamics import Wrench
 from .rotations import matrix_from_quat, quat_from_rotvec, quat_multiply, quat_normalize, skew
 
 __all__ = ["MIDPOINT_RTOL", "MIDPOINT_MAX_ITERATIONS", "midpoint_momentum", "cayley_quat",
-           "implicit_midpoint_step", "dexpinv_world", "rkmk4_step", "RKMK4_C", "RKMK4_B"]
+           "implicit_midpoint_step", "dexpinv_world", "rkmk4_step", "RK4_C", "RK4_B"]
 
 # Newton's iteration for Pi+ stops once a correction is below this times |Pi|.  It converges
 # quadratically, so the correction after one this small would be of order its square: below
@@ -79,8 +79,11 @@ MIDPOINT_RTOL = 1e-13
 # past it the step is returned as it stands and the harness judges the run.
 MIDPOINT_MAX_ITERATIONS = 30
 
-RKMK4_C = (0.5, 0.5, 1.0)  # c_2, c_3, c_4 (c_1 = 0): stage i starts from h c_i K_{i-1}
-RKMK4_B = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
+# The classic RK4 tableau, used by rkmk4 here and by the MuJoCo RK4 maps (engine_maps): stage i
+# starts from h c_i times stage i-1's slope (c_1 = 0; only the subdiagonal of A is non-zero), and
+# the step combines the slopes with the weights B.
+RK4_C = (0.5, 0.5, 1.0)  # c_2, c_3, c_4
+RK4_B = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
 
 
 def midpoint_momentum(Pi: np.ndarray, h: float, I_inv: np.ndarray) -> np.ndarray:
@@ -142,7 +145,7 @@ def rkmk4_step(k: int, x, q, p, L, dt: float, M: float, I_inv, g, wrench: Wrench
 
     dx, w, dp, dL = slopes(x, q, p, L)
     dxs, Ks, dps, dLs = [dx], [w], [dp], [dL]
-    for c in RKMK4_C:
+    for c in RK4_C:
         u = dt * c * Ks[-1]
         dx, w, dp, dL = slopes(x + dt * c * dxs[-1], quat_multiply(quat_from_rotvec(u), q),
                                p + dt * c * dps[-1], L + dt * c * dLs[-1])
@@ -150,7 +153,7 @@ def rkmk4_step(k: int, x, q, p, L, dt: float, M: float, I_inv, g, wrench: Wrench
         Ks.append(dexpinv_world(u, w))
         dps.append(dp)
         dLs.append(dL)
-    b1, b2, b3, b4 = RKMK4_B
+    b1, b2, b3, b4 = RK4_B
     x = x + dt * (b1 * dxs[0] + b2 * dxs[1] + b3 * dxs[2] + b4 * dxs[3])
     p = p + dt * (b1 * dps[0] + b2 * dps[1] + b3 * dps[2] + b4 * dps[3])
     L = L + dt * (b1 * dLs[0] + b2 * dLs[1] + b3 * dLs[2] + b4 * dLs[3])
