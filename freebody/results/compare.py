@@ -104,12 +104,8 @@ class Change:
     limit: float | None = None
     note: str = ""
 
-    @property
-    def regression(self) -> bool:
-        """Whether this change fails the gate by default (see :data:`FAILING`)."""
-        return self.verdict in FAILING
-
     def fails(self, strict: bool = False) -> bool:
+        """Whether this change fails the gate (:data:`FAILING`; with ``strict``: STRICT_FAILING)."""
         return self.verdict in (STRICT_FAILING if strict else FAILING)
 
 
@@ -270,12 +266,8 @@ def _versions(base: dict, cur: dict) -> list[tuple[str, str, str]]:
         return v
 
     b, c = of(base), of(cur)
-    rows = [("freebody", str(base.get("freebody_version") or "-"), str(current_version(cur)))]
+    rows = [("freebody", *(str(d.get("freebody_version") or "-") for d in (base, cur)))]
     return rows + [(e, b.get(e, "-"), c.get(e, "-")) for e in dict.fromkeys([*b, *c])]
-
-
-def current_version(doc: dict) -> str:
-    return str(doc.get("freebody_version") or "-")
 
 
 def _default_changes(b_runs: dict, c_runs: dict) -> list[tuple[str, str, str, str]]:

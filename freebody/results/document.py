@@ -181,12 +181,6 @@ def write_trajectory(path: Path, tr: Trajectory, truth: Trajectory | None, index
     write_npz_atomic(Path(path), arrays)
 
 
-def save_trajectory(out_dir: Path, relname: str, tr: Trajectory, truth: Trajectory | None,
-                    every: int | None = 1, series=None, diverged_at: float | None = None) -> None:
-    """Save a run's samples (those of :func:`samples_to_save`) and its truth's, atomically."""
-    write_trajectory(Path(out_dir) / relname, *samples_to_save(tr, truth, every, series, diverged_at))
-
-
 def load_trajectory(path: Path) -> tuple[Trajectory, Trajectory | None]:
     """(run trajectory, truth trajectory or None) from a trajectory file."""
     with np.load(path) as z:

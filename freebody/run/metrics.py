@@ -127,14 +127,6 @@ def series(problem: Problem, tr: Trajectory, truth: Trajectory, scales: Scales |
     )
 
 
-def summarize(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[dict, Series]:
-    """The results.json ``metrics`` dict (maxima and finals) and the per-sample series."""
-    s = series(problem, tr, truth)
-    stats = SeriesStats()
-    stats.update(s, tr.orthonormality_error, 0)
-    return stats.metrics(s.angular_momentum_relative, s.energy_relative), s
-
-
 class RunningMax:
     """The maximum of an array seen piece by piece: ``max`` as ``np.max`` gives it over all the
     pieces (NaN propagates; None before any sample), and ``best``/``best_index`` the largest finite

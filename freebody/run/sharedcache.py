@@ -57,18 +57,11 @@ def _load(path: Path) -> Trajectory | None:
         return None
 
 
-def _load_quaternions(path: Path) -> np.ndarray | None:
+def _load_array(path: Path, name: str) -> np.ndarray | None:
+    """The array ``name`` of a store file (a map's quaternion_wxyz, a round-off spread), or None."""
     try:
         with np.load(path) as z:
-            return z["quaternion_wxyz"]
-    except (OSError, ValueError, KeyError):  # unreadable: compute it again
-        return None
-
-
-def _load_array(path: Path) -> np.ndarray | None:
-    try:
-        with np.load(path) as z:
-            return z["spread"]
+            return z[name]
     except (OSError, ValueError, KeyError):  # unreadable: compute it again
         return None
 
@@ -115,7 +108,7 @@ class GroupTruthCache(TruthCache):
         key = full[:3] + (f"{integrator}.q",)
         if key not in self._memo:
             path = self._path(problem, dt, steps, integrator)
-            q = _load_quaternions(path) if path is not None and path.exists() else None
+            q = _load_array(path, "quaternion_wxyz") if path is not None and path.exists() else None
             if q is None:
                 tr = self._simulate_map(problem, integrator, dt, steps)
                 if path is not None:
@@ -130,7 +123,7 @@ class GroupTruthCache(TruthCache):
         if key in self._memo:
             return self._memo[key]
         path = self._path(problem, dt, steps, tag)
-        spread = _load_array(path) if path is not None and path.exists() else None
+        spread = _load_array(path, "spread") if path is not None and path.exists() else None
         if spread is None:
             spread = super().roundoff(problem, integrator, dt, steps, precision)
             if path is not None:
