@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import engine_marks
+from test_compiled_maps import ulps  # max |a - b| in ulps of a's largest component
 from freebody.adapters.base import load_adapter
 from freebody.input import load_case
 from freebody.reference_impl import compiled as C
@@ -20,7 +21,6 @@ from freebody.reference_impl.problem import Body, InitialState, Load, Problem
 from freebody.reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply
 from freebody.reference_impl.truth import truth_trajectory
 
-EPS = np.finfo(float).eps
 # An engine's run against its map, largest orientation difference (geodesic angle).  Both are the
 # same float64 arithmetic up to the order of operations (BLAS, Eigen, MuJoCo's and Bullet's own
 # helpers), so they differ by round-off, which the dynamics carry and amplify: measured at most
@@ -138,13 +138,6 @@ def _random_problem(rng, i: int) -> tuple[Problem, float]:
 
 
 PROBLEMS = [_random_problem(np.random.default_rng(2000 + i), i) for i in range(BODIES)]
-
-
-def ulps(a, b) -> float:
-    """max |a - b| in ulps of a's largest component (0 when both are zero)."""
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
-    return float(np.max(np.abs(a - b)) / (EPS * max(np.max(np.abs(a)), np.finfo(float).tiny)))
 
 
 def _rotvec_as_quat(a, b):

@@ -21,7 +21,7 @@ from freebody.reference_impl.rotations import geodesic_angle, matrix_from_quat, 
 from freebody.reference_impl.truth import truth_trajectory
 from freebody.run.metrics import energies
 
-from test_splitting import AREA_CHANGE_MIN, _jacobian_det, _reduced_map
+from test_splitting import AREA_CHANGE_MIN, _energy_error, _jacobian_det, _reduced_map
 
 MIDPOINT, RKMK4 = "implicit-midpoint", "rkmk4"
 DT = 0.01  # s: the default suite's coarse step
@@ -63,12 +63,6 @@ DISTINCT_FROM_RKMK4_BODY_MIN_RAD = 1e-10
 # One step of the midpoint rule from a random body momentum (|Pi| ~ 3, h |w| up to ~1): Pi+ = R+^T L
 # satisfies Pi+ = Pi + h Pi_mid x I^-1 Pi_mid to round-off (measured residual 2e-15 relative).
 MIDPOINT_RESIDUAL_RTOL = 1e-13
-
-
-def _energy_error(pb: Problem, name: str, dt: float, duration: float) -> np.ndarray:
-    """(E(t) - E(0)) / KE(0), signed, shape (steps + 1,)."""
-    ke, E = energies(pb, simulate(pb, name, dt, int(round(duration / dt))))
-    return (E - E[0]) / ke[0]
 
 
 def _angular_momentum(pb: Problem, tr) -> np.ndarray:
