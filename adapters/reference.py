@@ -2,7 +2,10 @@
 every engine alike.
 
 Conventions: canonical throughout (no conversion).  Integrators: every name in
-``reference_impl.integrators.INTEGRATORS``.  Always available (numpy and numba, both required
+``reference_impl.integrators.INTEGRATORS``; an old name (``INTEGRATOR_ALIASES``, e.g.
+``symplectic-euler``, now ``lie-euler``) is taken for the current one (:attr:`integrator_aliases`:
+``--integrator`` resolves it in :func:`freebody.run.matrix.select_integrators`, and the adapter
+itself accepts it), but never offered.  Always available (numpy and numba, both required
 dependencies of freebody).  The maps are the compiled step functions of
 ``reference_impl.compiled`` (those ``integrators.simulate`` runs), stepped from the adapter's own
 state: :meth:`advance` continues from where the previous call ended (step index ``k``, the
@@ -20,10 +23,11 @@ import numpy as np
 from .. import __version__ as _freebody_version
 from ..reference_impl import compiled as _c
 from ..reference_impl.conventions import Trajectory
-from ..reference_impl.integrators import INTEGRATORS, _initial, simulate
+from ..reference_impl.integrators import (INTEGRATOR_ALIASES, INTEGRATORS, _initial, canonical_integrator,
+                                           simulate)
 from .base import Adapter
 
-# euler-quat, symplectic-euler, rk4, implicit-midpoint, rkmk4: on (x, q, p, L) with I_b^-1
+# euler-quat, lie-euler, rk4, implicit-midpoint, rkmk4: on (x, q, p, L) with I_b^-1
 _QUAT_SCHEMES = _c.QUAT_SCHEMES
 # the maps stepped from the adapter's state (the others: integrated whole, handed out in pieces)
 CONTINUED = ("euler-matrix", "euler-matrix-gs", "semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro",
@@ -52,8 +56,8 @@ def _continue_quat(scheme, k0, x, q, p, L, dt, steps, M, I_inv, g, loads, out_x,
     for i in range(steps):
         if scheme == _c.EULER_QUAT:
             x, q, p, L = _c.euler_quat_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
-        elif scheme == _c.SYMPLECTIC_EULER:
-            x, q, p, L = _c.symplectic_euler_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
+        elif scheme == _c.LIE_EULER:
+            x, q, p, L = _c.lie_euler_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
         elif scheme == _c.IMPLICIT_MIDPOINT:
             x, q, p, L = _c.implicit_midpoint_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
         elif scheme == _c.RKMK4:
@@ -100,6 +104,8 @@ class ReferenceAdapter(Adapter):
     name: ClassVar[str] = "reference"
     import_name: ClassVar[str] = "numpy"
     integrators: ClassVar[tuple[str, ...]] = tuple(INTEGRATORS)
+    # old name -> current name, accepted and not offered (``--integrator symplectic-euler``)
+    integrator_aliases: ClassVar[dict[str, str]] = INTEGRATOR_ALIASES
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "(w, x, y, z), Hamilton, body -> world (canonical)",
         "angular velocity frame": "world",
@@ -108,6 +114,9 @@ class ReferenceAdapter(Adapter):
         "damping": "none",
         "sleeping": "none",
     }
+
+    def __init__(self, problem, dt, integrator, *args, **kwargs):
+        super().__init__(problem, dt, canonical_integrator(integrator), *args, **kwargs)
 
     @classmethod
     def engine_version(cls) -> str:
@@ -198,6 +207,7 @@ def map_orientations(problem, integrator: str, dt: float, steps: int, chunk_step
     from ..reference_impl.truth import piece_bounds
 
     bounds = piece_bounds(steps, chunk_steps)
+    integrator = canonical_integrator(integrator)
     if integrator in CONTINUED:
         adapter = ReferenceAdapter(problem, dt, integrator)
         for k0, k1 in bounds:

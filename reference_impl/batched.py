@@ -16,7 +16,7 @@ Cross products use "wrapped" buffers whose rows are (x, y, z, x, y): ``a x b`` i
 ``a[1:4] * b[2:5] - a[2:5] * b[1:4]``, two calls on (3, B) blocks instead of six on rows.
 Rotations are quaternions (no 3x3 products) except in the matrix integrators.
 
-Frames.  The quaternion integrators (``euler-quat``, ``symplectic-euler``, the two
+Frames.  The quaternion integrators (``euler-quat``, ``lie-euler``, the two
 ``semi-implicit-*`` maps, ``rk4``) are run in each body's principal frame, where the inertia is
 diagonal: every one of these maps commutes with a constant change of body frame
 (q_p = q q_P, w_p = P^T w_b, I_p = P^T I_b P = diag), so this changes their results by round-off
@@ -33,6 +33,7 @@ from fractions import Fraction
 import numpy as np
 
 from .conventions import Trajectory
+from .integrators import canonical_integrator
 from .problem import Problem
 from .rotations import (matrix_from_quat, nearest_rotation, orthonormality_error, quat_conjugate,
                         quat_multiply)
@@ -41,7 +42,7 @@ __all__ = ["BATCHED_INTEGRATORS", "BatchTrajectory", "simulate_batch", "supports
            "simulate_problem", "quat_from_matrix_batch", "torque_free_rotation_batch",
            "closed_form_batch"]
 
-BATCHED_INTEGRATORS = ("euler-matrix", "euler-matrix-gs", "euler-quat", "symplectic-euler",
+BATCHED_INTEGRATORS = ("euler-matrix", "euler-matrix-gs", "euler-quat", "lie-euler",
                        "semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro", "rk4")
 
 # Floor of the rotation angle |h w| in sin(|h w|/2) / |h w| (Exp): only an exactly zero angle
@@ -540,7 +541,7 @@ def _run_semi_implicit(p: dict, h: float, steps: int, rec: _Recorder, implicit: 
 
 
 def _run_quat_momentum(p: dict, h: float, steps: int, rec: _Recorder, scheme: str) -> None:
-    """euler-quat, symplectic-euler and rk4 on (x, q_p, p, L), see integrators._simulate_quat."""
+    """euler-quat, lie-euler and rk4 on (x, q_p, p, L), see integrators._simulate_quat."""
     B = p["B"]
     wk = _Work(B)
     M = p["M"]
@@ -579,7 +580,7 @@ def _run_quat_momentum(p: dict, h: float, steps: int, rec: _Recorder, scheme: st
                 np.multiply(dL, h, out=wk.t3a)
                 L += wk.t3a
                 _wrap(L5)
-        else:  # symplectic-euler: momenta, then x with the new p, q with w(current q, new L)
+        else:  # lie-euler: momenta, then x with the new p, q with w(current q, new L)
             np.multiply(dp, h, out=wk.t3a)
             Pm += wk.t3a
             if dL is not None:
@@ -717,7 +718,7 @@ def simulate_batch(integrator: str, mass, I_body, position, quaternion_wxyz, lin
 
     integrator : a name of :data:`BATCHED_INTEGRATORS` (every integrator of
         ``integrators.INTEGRATORS`` but symplectic-splitting, implicit-midpoint and rkmk4, which are not
-        batched).
+        batched), or an old name of one (``integrators.INTEGRATOR_ALIASES``).
     mass : float or ndarray, shape (B,), kg.
     I_body : ndarray, shape (3, 3) or (B, 3, 3), kg m^2, about the COM, body frame.
     position : ndarray, shape (B, 3) or (3,), COM, world, m.
@@ -733,6 +734,7 @@ def simulate_batch(integrator: str, mass, I_body, position, quaternion_wxyz, lin
     Returns a :class:`BatchTrajectory` with N = number of kept samples.  A blow-up is not an
     error: its samples become inf/NaN, as in :func:`integrators.simulate`.
     """
+    integrator = canonical_integrator(integrator)
     if integrator not in BATCHED_INTEGRATORS:
         raise ValueError(f"unknown integrator {integrator!r}; known: {', '.join(BATCHED_INTEGRATORS)}")
     steps, every = int(steps), max(1, int(every))

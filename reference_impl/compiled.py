@@ -1,7 +1,7 @@
 """The reference integrators of :mod:`integrators`, one body, as compiled scalar code (numba).
 
 Each scheme is the same map as its numpy function in :mod:`integrators` (``euler_matrix_step``,
-``euler_quat_step``, ``symplectic_euler_step``, ``rk4_step``, ``semi_implicit_step``,
+``euler_quat_step``, ``lie_euler_step``, ``rk4_step``, ``semi_implicit_step``,
 ``splitting_step`` of :mod:`splitting`, and ``implicit_midpoint_step`` and ``rkmk4_step`` of
 :mod:`lie_integrators`), written
 line for line with the same formulas in the same order of operations, on plain floats: a vector is
@@ -15,7 +15,7 @@ products go through BLAS (fused multiply-adds on most CPUs, BLAS's own summation
 ``np.linalg.solve`` through LAPACK and the nearest rotation through an SVD (here: Newton's polar
 iteration), so the two agree to rounding, not always bit for bit.  With OpenBLAS on kernels without
 fused multiply-adds (``OPENBLAS_CORETYPE=Sandybridge``) the numpy loops of euler-quat,
-symplectic-euler, rk4 and semi-implicit-explicit-gyro give these maps' trajectories bit for bit.
+lie-euler, rk4 and semi-implicit-explicit-gyro give these maps' trajectories bit for bit.
 
 Why numba.  The maps are a few hundred flops per step; a Python loop over numpy calls on 3-vectors
 costs about 75 us per step in interpreter and call overhead, against about 1.5 us for MuJoCo's own
@@ -50,7 +50,7 @@ from .lie_integrators import MIDPOINT_MAX_ITERATIONS, MIDPOINT_RTOL, RK4_B, RK4_
 from .problem import Problem
 
 __all__ = ["Loads", "loads_of", "simulate_compiled", "wrench", "euler_matrix_step", "euler_quat_step",
-           "symplectic_euler_step", "rk4_step", "semi_implicit_step", "free_rotation", "splitting_step",
+           "lie_euler_step", "rk4_step", "semi_implicit_step", "free_rotation", "splitting_step",
            "implicit_midpoint_step", "rkmk4_step", "matrix_outputs"]
 
 # Every function here: compiled on first use, cached on disk, inf/NaN rather than exceptions.
@@ -439,8 +439,8 @@ def euler_quat_step(k, x, q, p, L, dt, M, I_inv, g, loads):
 
 
 @jit
-def symplectic_euler_step(k, x, q, p, L, dt, M, I_inv, g, loads):
-    """Momenta first, then x and q with the new velocities: q+ = Exp(h w+) q (world frame)."""
+def lie_euler_step(k, x, q, p, L, dt, M, I_inv, g, loads):
+    """Momenta first (kick), then x and q with the new velocities: q+ = Exp(h w+) q (world frame)."""
     R = matrix_from_quat(q)
     f, tau = wrench(k, x, R, loads)
     p = add(p, scale(dt, add(f, scale(M, g))))
@@ -667,8 +667,8 @@ def run_euler_matrix(x, R, p, L, dt, steps, M, I_inv, Mg, loads, gram, out_x, ou
         out_ortho[k] = ortho
 
 
-EULER_QUAT, SYMPLECTIC_EULER, RK4, IMPLICIT_MIDPOINT, RKMK4 = 0, 1, 2, 3, 4
-QUAT_SCHEMES = {"euler-quat": EULER_QUAT, "symplectic-euler": SYMPLECTIC_EULER, "rk4": RK4,
+EULER_QUAT, LIE_EULER, RK4, IMPLICIT_MIDPOINT, RKMK4 = 0, 1, 2, 3, 4
+QUAT_SCHEMES = {"euler-quat": EULER_QUAT, "lie-euler": LIE_EULER, "rk4": RK4,
                 "implicit-midpoint": IMPLICIT_MIDPOINT, "rkmk4": RKMK4}
 
 
@@ -678,8 +678,8 @@ def run_quat(scheme, x, q, p, L, dt, steps, M, I_inv, g, loads, out_x, out_q, ou
     for k in range(steps):
         if scheme == EULER_QUAT:
             x, q, p, L = euler_quat_step(k, x, q, p, L, dt, M, I_inv, g, loads)
-        elif scheme == SYMPLECTIC_EULER:
-            x, q, p, L = symplectic_euler_step(k, x, q, p, L, dt, M, I_inv, g, loads)
+        elif scheme == LIE_EULER:
+            x, q, p, L = lie_euler_step(k, x, q, p, L, dt, M, I_inv, g, loads)
         elif scheme == IMPLICIT_MIDPOINT:
             x, q, p, L = implicit_midpoint_step(k, x, q, p, L, dt, M, I_inv, g, loads)
         elif scheme == RKMK4:
@@ -729,8 +729,11 @@ def mat(A) -> tuple:
 
 def simulate_compiled(problem: Problem, integrator: str, dt: float, steps: int) -> Trajectory:
     """``integrators.simulate(problem, integrator, dt, steps)`` by the compiled maps: the same
-    Trajectory to rounding.  The initial state is formed in numpy exactly as the numpy loops form it."""
-    from .integrators import _initial, _time
+    Trajectory to rounding.  The initial state is formed in numpy exactly as the numpy loops form it.
+    An old integrator name (``integrators.INTEGRATOR_ALIASES``) runs the map it now stands for."""
+    from .integrators import _initial, _time, canonical_integrator
+
+    integrator = canonical_integrator(integrator)
 
     M, I_b, I_inv, x, q, R, p, L, v, w = _initial(problem)
     loads = loads_of(problem, dt)

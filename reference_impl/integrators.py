@@ -8,15 +8,16 @@ Integrators (``INTEGRATORS[name]``):
 - ``euler-matrix``: explicit Euler on (x, R, p, L), R a 3x3 matrix with no correction.
 - ``euler-matrix-gs``: the same, with Gram-Schmidt re-orthonormalisation of R after each step.
 - ``euler-quat``: explicit Euler on (x, q, p, L), q renormalised after each step.
-- ``symplectic-euler``: momenta first, then positions with the new velocities; the rotation by the
+- ``lie-euler``: momenta first (kick), then x and q with the new velocities; the rotation by the
   world-frame exponential map q+ = Exp(h w+) q with w+ = R I_b^-1 R^T L+ (current R).  Symplectic
   Euler for the translation (H = |p|^2 / 2M + V(x) is separable), but not for the rotation: the
   rotational energy 1/2 L . R I_b^-1 R^T L depends on both R and L, and w is taken at the *old* R
   (symplectic Euler would need it at the new one, an implicit step).  Torque-free, L is constant
-  and the map is the explicit Euler step on the rotation group (Lie-Euler), which differs from
-  ``euler-quat`` only in how q + h q' is brought back to a unit quaternion (Exp instead of
-  normalising, O(h^3) a step): the two drift alike (dzhanibekov, dt = 0.01 s: energy errors 0.4851
-  and 0.4854 after 10 s).
+  and the map is the explicit Euler step on the rotation group, the Lie-Euler method (hence the
+  name), which differs from ``euler-quat`` only in how q + h q' is brought back to a unit
+  quaternion (Exp instead of normalising, O(h^3) a step): the two drift alike (dzhanibekov,
+  dt = 0.01 s: energy errors 0.4851 and 0.4854 after 10 s).  Called ``symplectic-euler`` before
+  0.2.0; that name is still accepted (:data:`INTEGRATOR_ALIASES`).
 - ``semi-implicit-explicit-gyro``: the engines' map in body-frame variables (MuJoCo ``Euler``,
   PyBullet multibody, DART): w_b+ = w_b + h I^-1 (tau_b - w_b x I w_b), v+ = v + h (f/M + g),
   x+ = x + h v+, q+ = q Exp(h w_b+).
@@ -40,7 +41,7 @@ Loads are held constant over a step (every RK4 stage sees the same active set; a
 arm is evaluated at the stage's state).
 
 Each scheme is one numpy function of a step (``euler_matrix_step``, ``euler_quat_step``,
-``symplectic_euler_step``, ``rk4_step``, ``semi_implicit_step``, ``splitting.splitting_step``,
+``lie_euler_step``, ``rk4_step``, ``semi_implicit_step``, ``splitting.splitting_step``,
 ``lie_integrators.implicit_midpoint_step``, ``lie_integrators.rkmk4_step``): this
 module is the readable reference.  :func:`simulate` runs the same maps compiled (:mod:`compiled`: scalar loops, numba),
 150 to 600 times faster; ``simulate(..., compiled=False)`` runs the numpy loops here, which
@@ -120,10 +121,10 @@ def euler_quat_step(k: int, x, q, p, L, dt: float, M: float, I_inv, g, wrench: W
     return x + dt * dx, quat_normalize(q + dt * dq), p + dt * dp, L + dt * dL
 
 
-def symplectic_euler_step(k: int, x, q, p, L, dt: float, M: float, I_inv, g, wrench: Wrench):
-    """Momenta first, then x and q with the new velocities: q+ = Exp(h w+) q (world frame),
-    w+ = R I_b^-1 R^T L+ with the current R (so, torque-free, explicit Euler on the rotation group:
-    not symplectic for the rotation, see the module docstring)."""
+def lie_euler_step(k: int, x, q, p, L, dt: float, M: float, I_inv, g, wrench: Wrench):
+    """Momenta first (kick), then x and q with the new velocities: q+ = Exp(h w+) q (world frame),
+    w+ = R I_b^-1 R^T L+ with the current R (so, torque-free, explicit Euler on the rotation group,
+    the Lie-Euler method: symplectic Euler for the translation only, see the module docstring)."""
     R = matrix_from_quat(q)
     f, tau = wrench(k, x, R)
     p = p + dt * (f + M * g)
@@ -212,13 +213,13 @@ def _simulate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool) 
     return Trajectory(_time(dt, steps), xs, quats, ps / problem.body.mass, ws, ortho)
 
 
-_QUAT_STEPS = {"euler-quat": euler_quat_step, "symplectic-euler": symplectic_euler_step, "rk4": rk4_step,
+_QUAT_STEPS = {"euler-quat": euler_quat_step, "lie-euler": lie_euler_step, "rk4": rk4_step,
                "symplectic-splitting": splitting_step, "implicit-midpoint": implicit_midpoint_step,
                "rkmk4": rkmk4_step}
 
 
 def _simulate_quat(problem: Problem, dt: float, steps: int, scheme: str) -> Trajectory:
-    """euler-quat, symplectic-euler, rk4, symplectic-splitting, implicit-midpoint and rkmk4: all on
+    """euler-quat, lie-euler, rk4, symplectic-splitting, implicit-midpoint and rkmk4: all on
     (x, q, p, L)."""
     M, I_b, I_inv, x, q, _, p, L, _, _ = _initial(problem)
     wrench = wrench_function(problem, dt)
@@ -262,8 +263,9 @@ INTEGRATORS: dict[str, Integrator] = {
                    lambda pb, dt, n: _simulate_euler_matrix(pb, dt, n, gram=True)),
         Integrator("euler-quat", 1, False, "explicit Euler on a renormalised quaternion",
                    lambda pb, dt, n: _simulate_quat(pb, dt, n, "euler-quat")),
-        Integrator("symplectic-euler", 1, False, "momenta first, then x and q by the exponential map",
-                   lambda pb, dt, n: _simulate_quat(pb, dt, n, "symplectic-euler")),
+        Integrator("lie-euler", 1, False,
+                   "momenta first (kick), then x and q by the exponential map; torque-free the Lie-Euler step",
+                   lambda pb, dt, n: _simulate_quat(pb, dt, n, "lie-euler")),
         Integrator("semi-implicit-explicit-gyro", 1, False,
                    "engines' map: body-frame w, explicit gyroscopic term (MuJoCo Euler, PyBullet, DART)",
                    lambda pb, dt, n: _simulate_semi_implicit(pb, dt, n, implicit_gyro=False)),
@@ -286,6 +288,20 @@ INTEGRATORS: dict[str, Integrator] = {
 }
 
 
+# Old integrator names -> current names.  A name changes when it was not honest (``symplectic-euler``
+# is not symplectic for the rotation: it is the Lie-Euler step); the old one is kept here so that old
+# commands (``--integrator symplectic-euler``), scripts and stored results and baselines keep working:
+# :func:`simulate` and the reference engine take it, and results.json documents are read with their
+# names brought up to date (:func:`freebody.results.document.upgrade_names`).
+INTEGRATOR_ALIASES: dict[str, str] = {"symplectic-euler": "lie-euler"}
+
+
+def canonical_integrator(name: str) -> str:
+    """The current name of a reference integrator: ``name`` itself, or the name an old one
+    (:data:`INTEGRATOR_ALIASES`) now stands for."""
+    return INTEGRATOR_ALIASES.get(name, name)
+
+
 def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled: bool = True) -> Trajectory:
     """Integrate ``problem`` for ``steps`` steps of ``dt`` with the named integrator.
 
@@ -294,8 +310,10 @@ def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled:
         tested against.  Both give the same trajectory to rounding.
 
     A blow-up is not an error here: its samples become inf/NaN and the harness calls it diverged.
-    ``integrator`` may also name an engine-equivalent map (:data:`engine_maps.ENGINE_MAPS`).
+    ``integrator`` may also name an engine-equivalent map (:data:`engine_maps.ENGINE_MAPS`) or be an
+    old name (:data:`INTEGRATOR_ALIASES`).
     """
+    integrator = canonical_integrator(integrator)
     if integrator not in INTEGRATORS:
         from .engine_maps import ENGINE_MAPS, simulate_engine_map  # imports this module
         if integrator in ENGINE_MAPS:
@@ -308,7 +326,8 @@ def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled:
         return entry.simulate(problem, dt, steps)
 
 
-__all__ = ["Integrator", "INTEGRATORS", "simulate", "integrate_euler_matrix", "matrix_outputs",
-           "euler_matrix_step", "euler_quat_step", "symplectic_euler_step", "rk4_step",
+__all__ = ["Integrator", "INTEGRATORS", "INTEGRATOR_ALIASES", "canonical_integrator", "simulate",
+           "integrate_euler_matrix", "matrix_outputs",
+           "euler_matrix_step", "euler_quat_step", "lie_euler_step", "rk4_step",
            "semi_implicit_step", "semi_implicit_velocities", "splitting_step", "implicit_midpoint_step",
            "rkmk4_step", "Wrench"]

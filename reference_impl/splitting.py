@@ -1,7 +1,7 @@
 """A symplectic splitting method for the free rigid body: the structure-preserving reference
 integrator ``symplectic-splitting`` (second order, symplectic, time-reversible, L exact).
 
-The lesson it is here for: explicit Euler (``euler-quat``, and ``symplectic-euler``, which is an
+The lesson it is here for: explicit Euler (``euler-quat``, and ``lie-euler``, which is the
 explicit Euler step on the rotation group, see :mod:`integrators`) lets the energy of a tumbling
 body drift away step after step; a symplectic method keeps the energy error bounded, oscillating
 about zero for ever, because it exactly solves a nearby Hamiltonian problem (backward error

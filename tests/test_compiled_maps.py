@@ -152,7 +152,7 @@ def _steps(scheme: str, pb: Problem, dt: float):
         return (lambda k, s: ref.splitting_step(k, *s, dt, M, frame, g, wrench),
                 lambda k, s: C.splitting_step(k, *tuples(s), dt, M, axes_c, moments_c, g_c, loads))
     numpy_step, compiled_step = {"euler-quat": (ref.euler_quat_step, C.euler_quat_step),
-                                 "symplectic-euler": (ref.symplectic_euler_step, C.symplectic_euler_step),
+                                 "lie-euler": (ref.lie_euler_step, C.lie_euler_step),
                                  "rk4": (ref.rk4_step, C.rk4_step),
                                  "implicit-midpoint": (ref.implicit_midpoint_step, C.implicit_midpoint_step),
                                  "rkmk4": (ref.rkmk4_step, C.rkmk4_step)}[scheme]

@@ -39,7 +39,7 @@ def test_integrators_demo(tmp_path):
     _assert_written(res)
     assert len(res.figures) == 4
     slopes = res.facts["slopes"]
-    for name in ("euler-matrix", "euler-quat", "symplectic-euler"):
+    for name in ("euler-matrix", "euler-quat", "lie-euler"):
         assert abs(slopes[name] - 1) < ORDER_SLACK, (name, slopes)
     assert abs(slopes["symplectic-splitting"] - 2) < ORDER_SLACK, slopes
     assert abs(slopes["rk4"] - 4) < ORDER_SLACK, slopes

@@ -27,7 +27,7 @@ from freebody.run.records import RunSpec, Status
 from freebody.run.sharedcache import GroupTruthCache
 
 requires_mujoco = pytest.mark.skipif(not is_available("mujoco"), reason="mujoco not installed (pip install mujoco)")
-EXACT_ROTATION_MAPS = {"semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro", "symplectic-euler",
+EXACT_ROTATION_MAPS = {"semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro", "lie-euler",
                        "symplectic-splitting", "rkmk4", "rkmk4-body", "rk4-body-exp", "implicit-gyro-split-torque"}
 # DART's map differs from semi-implicit-explicit-gyro only by its truncated exponential below 1e-3 rad
 # a step: on a sphere at dt 1e-3 it is not exact (h |w| < 1e-3 there)
@@ -104,7 +104,7 @@ def test_a_spin_of_a_sphere_is_a_tie_of_the_exact_rotation_maps():
     is a tie of all of them (named by the first in candidate order), not one of them."""
     pb, dt = load_case("spinning_sphere"), 0.001
     n = pb.steps(dt)
-    for source in ("semi-implicit-explicit-gyro", "symplectic-euler"):
+    for source in ("semi-implicit-explicit-gyro", "lie-euler"):
         m = _identify(pb, simulate(pb, source, dt, n), "Euler", dt, n)
         assert set(m["indistinguishable"]) == EXACT_ROTATION_MAPS, m["ratios"]
         assert m["integrator"] == "semi-implicit-explicit-gyro"  # the first of the tie
@@ -112,7 +112,7 @@ def test_a_spin_of_a_sphere_is_a_tie_of_the_exact_rotation_maps():
         run = {"matches_reference": m, "engine": "e", "integrator": "Euler", "case": "spinning_sphere",
                "dt": dt, "status": "ok", "metrics": {}}
         text = ("tie: semi-implicit-explicit-gyro = semi-implicit-implicit-gyro = rkmk4-body = rk4-body-exp = "
-                "implicit-gyro-split-torque = symplectic-euler = symplectic-splitting = rkmk4")
+                "implicit-gyro-split-torque = lie-euler = symplectic-splitting = rkmk4")
         assert rd.reproduces(run).startswith(text)
         assert rd.reproduction_summary([run])[0][1] == text
         assert text in summary_table([run])
@@ -272,7 +272,7 @@ def test_a_drifting_rotation_matrix_stays_ok():
 def test_orthonormality_divergence_is_the_earlier_of_the_bounds():
     pb, dt, n = load_case("spinning_sphere"), 0.01, 200
     tr = simulate(pb, "euler-matrix", dt, n)
-    truth = simulate(pb, "symplectic-euler", dt, n)  # exact on a sphere
+    truth = simulate(pb, "lie-euler", dt, n)  # exact on a sphere
     t, why = divergence(pb, tr, truth)
     first_nan = np.flatnonzero(~np.isfinite(tr.quaternion_wxyz).all(axis=1))
     assert "R is no rotation" in why and first_nan.size and t < tr.t[first_nan[0]]

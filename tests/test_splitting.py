@@ -1,7 +1,7 @@
 """The structure-preserving reference integrator ``symplectic-splitting`` (reference_impl/splitting.py):
 its energy error stays bounded where explicit Euler drifts, its order is 2, it is exact where its
 parts commute (a sphere, a symmetric top, a spin about a principal axis), it keeps L, it is a Poisson
-map (area-preserving on the momentum sphere, which symplectic-euler is not) and time-reversible.
+map (area-preserving on the momentum sphere, which lie-euler is not) and time-reversible.
 Compiled == readable step by step: tests/test_compiled_maps.py (every integrator)."""
 from __future__ import annotations
 
@@ -30,9 +30,10 @@ SPLITTING_ENERGY_BOUND = 5e-5
 NO_DRIFT_FACTOR = 1.05
 SHORT_S, LONG_S, VERY_LONG_S = 10.0, 200.0, 1000.0
 # euler-quat on dzhanibekov gains energy: +0.485 of KE(0) after 10 s (measured; the issue's 4.854e-01
-# for symplectic-euler, 4.851e-01 for euler-quat).  A tenth of that still says "it drifts".
+# for lie-euler, then called symplectic-euler, 4.851e-01 for euler-quat).  A tenth of that still says
+# "it drifts".
 EULER_GAIN_MIN = 0.05
-# symplectic-euler is explicit Euler on the rotations (integrators docstring): its energy error
+# lie-euler is explicit Euler on the rotations (integrators docstring): its energy error
 # differs from euler-quat's by the O(h^3) per step of Exp vs renormalising (measured 3.5e-4 at 10 s).
 LIE_EULER_VS_EULER_QUAT = 1e-3
 
@@ -53,7 +54,7 @@ PARABOLA_M = 1e-12
 # Jacobian determinant of the reduced map Pi -> Pi+ (body momentum, h = 0.1 s) by central
 # differences of step 1e-5: the splitting preserves |Pi| and the area on the sphere |Pi| = const, so
 # the determinant is 1 to the differencing error (measured 1.2e-10); explicit Euler on the rotations
-# (symplectic-euler, euler-quat) also keeps |Pi| but not the area: measured |det - 1| 6e-3 to 0.23.
+# (lie-euler, euler-quat) also keeps |Pi| but not the area: measured |det - 1| 6e-3 to 0.23.
 AREA_TOL = 1e-7
 AREA_CHANGE_MIN = 1e-3
 # Forward n steps, then n steps of -dt from the end state: back to the start to round-off
@@ -80,7 +81,7 @@ def test_energy_error_stays_bounded_while_explicit_euler_drifts():
     assert np.abs(split).max() <= NO_DRIFT_FACTOR * np.abs(split[:first]).max()
     assert split.min() < 0 < split.max()  # it oscillates about the true energy
     euler = _energy_error(pb, "euler-quat", DT, SHORT_S)
-    lie_euler = _energy_error(pb, "symplectic-euler", DT, SHORT_S)
+    lie_euler = _energy_error(pb, "lie-euler", DT, SHORT_S)
     assert euler[-1] > EULER_GAIN_MIN and lie_euler[-1] > EULER_GAIN_MIN  # explicit Euler gains energy
     assert euler[-1] > 100 * np.abs(split).max()
     assert abs(lie_euler[-1] - euler[-1]) < LIE_EULER_VS_EULER_QUAT
@@ -181,10 +182,10 @@ def test_a_poisson_map_unlike_explicit_euler_on_the_rotations():
     I_b = np.diag([1.0, 2.0, 3.0])
     points = [3.0 * rng.normal(size=3) for _ in range(5)]
     for Pi in points:
-        for name in (SPLITTING, "symplectic-euler", "euler-quat"):
+        for name in (SPLITTING, "lie-euler", "euler-quat"):
             assert np.linalg.norm(_reduced_map(name, Pi, 0.1, I_b)) == pytest.approx(np.linalg.norm(Pi), rel=1e-14)
         assert abs(_jacobian_det(SPLITTING, Pi, 0.1, I_b) - 1.0) < AREA_TOL
-    for name in ("symplectic-euler", "euler-quat"):
+    for name in ("lie-euler", "euler-quat"):
         assert max(abs(_jacobian_det(name, Pi, 0.1, I_b) - 1.0) for Pi in points) > AREA_CHANGE_MIN, name
 
 

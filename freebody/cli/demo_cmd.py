@@ -12,7 +12,7 @@ def add_parser(sub) -> None:
         "demo", help="teaching figures: integrator error, the push quiz, the Dzhanibekov flip",
         description="Write slide-ready figures (PNG and SVG) and a Markdown page explaining them. "
                     "integrators: signed energy error and orientation error of euler-matrix, "
-                    "euler-matrix-gs, euler-quat, symplectic-euler, symplectic-splitting and rk4, R's "
+                    "euler-matrix-gs, euler-quat, lie-euler, symplectic-splitting and rk4, R's "
                     "orthonormality, convergence slopes; quiz: the "
                     "lecture's push quiz in closed form and on every engine; dzhanibekov: the flip on "
                     "every engine and a GIF of the tumbling box.  No NAME: all three.")

@@ -1,6 +1,7 @@
 """Compare a current run with a baseline: what changed, and whether anything regressed.
 
-Runs are matched by (case, engine, integrator, precision, dt), and then must be the same
+Runs are matched by (case, engine, integrator, precision, dt) (a renamed reference integrator by
+its current name: :func:`.document.upgrade_names`), and then must be the same
 *experiment* (:mod:`freebody.run.experiment`: the case's content, dt, steps, duration and the values
 freebody set in the engine).  A failing change (a *regression* in the gate's sense) is:
 
@@ -35,7 +36,7 @@ from .. import tolerances as tol
 from .io import read_regular_file
 from ..errors import InputError, printable
 from ..numbers import finite_or_none
-from .document import load_results
+from .document import load_results, upgrade_names
 from ..report.summary import run_label
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_ABS, ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_ABS,
                            ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL, ORIENTATION_ERROR_MAX,
@@ -396,10 +397,12 @@ def _filter(engines, cases):
 def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | None = None,
             sources: tuple[str, str] = ("baseline", "current"), *, strict: bool = False,
             engines: list[str] | None = None, cases: list[str] | None = None) -> Comparison:
-    """Compare two results documents (already loaded with :func:`load_side`).
+    """Compare two results documents (already loaded with :func:`load_side`; a document given
+    otherwise has its old integrator names brought up to date here as well: :func:`upgrade_names`).
 
     strict : every change beyond tolerance fails (improvements included).
     engines, cases : compare only the runs of these engines / cases (on both sides)."""
+    baseline, current = upgrade_names(baseline), upgrade_names(current)
     tols = tolerances or default_tolerances()
     keep = _filter(engines, cases)
     b_runs = _index([r for r in baseline.get("runs") or [] if keep(r)])

@@ -10,6 +10,10 @@ and, in ``cases``, the time steps and durations that ran.  Schema 1 documents (a
 still read: their runs have no ``experiment``, and ``freebody compare`` then matches runs on their
 identity and steps and says that their content could not be checked.
 
+Renamed reference integrators (``symplectic-euler`` is now ``lie-euler``) do not change the format
+and bump no schema version: every document read, of either version, has the old names replaced by
+the current ones (:func:`upgrade_names`), so that an old baseline still matches today's runs.
+
 Written with sorted keys; non-finite numbers become null (the run's status says why).  Readers
 ignore keys they do not know.  A trajectory file (npz) holds the run's arrays and its truth's:
 ``t (N,)``, ``position (N, 3)``, ``quaternion_wxyz (N, 4)``, ``linear_velocity (N, 3)``,
@@ -33,7 +37,9 @@ import numpy as np
 from .. import __version__
 from ..errors import InputError, abbreviated, printable
 from ..numbers import finite_or_none
+from ..adapters.base import REFERENCE_ENGINE
 from ..reference_impl.conventions import Trajectory
+from ..reference_impl.integrators import INTEGRATOR_ALIASES
 from .io import read_json, write_npz_atomic
 
 SCHEMA_VERSION = 2
@@ -270,7 +276,85 @@ def check_results(doc, where: str) -> dict:
         raise InputError(f"{where}: runs: missing or not a list")
     for i, r in enumerate(runs):
         _check_run(r, f"{where}: runs[{i}]", STATUSES)
-    return doc
+    return upgrade_names(doc)
+
+
+# The fields of a run's matches_reference that hold a reference map's name, a list of them, an
+# object keyed by them (freebody.run.judge.identify)
+_MAP_NAME_FIELDS = ("integrator", "closest")
+_MAP_NAME_LISTS = ("indistinguishable",)
+_MAP_NAME_KEYED = ("candidates", "levels_rad", "ratios")
+
+
+def upgrade_names(doc: dict, aliases: dict[str, str] | None = None) -> dict:
+    """``doc`` with the old names of reference integrators replaced by the current ones.
+
+    aliases : old name -> current name; default
+        :data:`freebody.reference_impl.integrators.INTEGRATOR_ALIASES` (``symplectic-euler`` ->
+        ``lie-euler``).
+
+    Renamed: the ``integrator`` of a reference engine run and of a reference engine entry of
+    ``convergence``; the map names of any run's ``matches_reference`` (``integrator``, ``closest``,
+    ``indistinguishable`` and the keys of ``candidates``, ``levels_rad`` and ``ratios``).  So
+    ``freebody compare`` of a baseline stored before a rename matches ``reference/symplectic-euler``
+    with ``reference/lie-euler``, and an engine run that reproduced ``symplectic-euler`` then and
+    ``lie-euler`` now is no scheme change.  Applied to every document read (:func:`check_results`),
+    whatever its schema version: a rename changes no format, so it bumps no schema version.  A
+    run's ``trajectory`` path (its file name may hold the old name) is kept: it names the file.
+    ``doc`` itself is not modified: it is returned as it is when no name changes, else a copy whose
+    changed runs and entries are copies.
+    """
+    aliases = INTEGRATOR_ALIASES if aliases is None else aliases
+    if not aliases:
+        return doc
+
+    def name(x):
+        return aliases.get(x, x) if isinstance(x, str) else x
+
+    def map_names(m: dict):
+        yield from (m.get(k) for k in _MAP_NAME_FIELDS)
+        for k in (*_MAP_NAME_LISTS, *_MAP_NAME_KEYED):
+            if isinstance(m.get(k), (list, dict)):
+                yield from m[k]
+
+    def stale(e: dict) -> bool:
+        m = e.get("matches_reference")
+        return ((e.get("engine") == REFERENCE_ENGINE and name(e.get("integrator")) != e.get("integrator"))
+                or (isinstance(m, dict) and any(name(x) != x for x in map_names(m) if isinstance(x, str))))
+
+    def upgraded(e: dict) -> dict:
+        """A copy of a run or convergence entry with its names brought up to date."""
+        out = dict(e)
+        if e.get("engine") == REFERENCE_ENGINE and "integrator" in e:
+            out["integrator"] = name(e["integrator"])
+        m = e.get("matches_reference")
+        if isinstance(m, dict):
+            m = dict(m)
+            for k in _MAP_NAME_FIELDS:
+                if k in m:
+                    m[k] = name(m[k])
+            for k in _MAP_NAME_LISTS:
+                if isinstance(m.get(k), list):
+                    m[k] = [name(x) for x in m[k]]
+            for k in _MAP_NAME_KEYED:
+                if isinstance(m.get(k), dict):
+                    m[k] = {name(x): v for x, v in m[k].items()}
+            out["matches_reference"] = m
+        return out
+
+    out = doc
+    for key in ("runs", "convergence"):
+        entries = doc.get(key)
+        if isinstance(entries, list) and any(isinstance(e, dict) and stale(e) for e in entries):
+            out = dict(out) if out is doc else out
+            out[key] = [upgraded(e) if isinstance(e, dict) and stale(e) else e for e in entries]
+    return out
+
+    out = dict(doc)
+    for key in ("runs", "convergence"):
+        if isinstance(doc.get(key), list):
+            out[key] = [entry(e) if isinstance(e, dict) else e for e in doc[key]]
+    return out
 
 
 def _check_run(r, where: str, statuses) -> None:

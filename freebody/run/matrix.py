@@ -84,17 +84,43 @@ def select_precisions(offered: dict[str, tuple[str, ...] | None],
     return out
 
 
+def integrator_aliases(engine: str) -> dict[str, str]:
+    """Old integrator names the engine still takes, old -> current (the adapter class's
+    ``integrator_aliases``, e.g. the reference engine's ``symplectic-euler`` -> ``lie-euler``);
+    {} when it has none or its adapter does not load."""
+    try:
+        with capture_output():
+            aliases = getattr(load_adapter(engine), "integrator_aliases", None)
+    except Exception:
+        return {}
+    return dict(aliases) if isinstance(aliases, dict) else {}
+
+
+def _current_name(engine: str, offered: tuple[str, ...], name: str) -> str:
+    """``name``, or the offered integrator an old name of the engine's now stands for (with a
+    one-line warning that the old name is deprecated); the runs are recorded under the current name."""
+    if any(o.lower() == name.lower() for o in offered):
+        return name
+    for old, new in integrator_aliases(engine).items():
+        if old.lower() == name.lower() and new in offered:
+            warnings.warn(f"--integrator {name}: the {engine} integrator {old!r} is now called {new!r}; "
+                          f"running {new} (the old name is deprecated)", FutureWarning, stacklevel=2)
+            return new
+    return name
+
+
 def select_integrators(engine: str, offered: tuple[str, ...], requested: list[str] | None) -> list[str]:
     """Apply ``--integrator`` selections: NAME applies to every engine, ENGINE:NAME to one engine.
 
     An engine to which no selection applies runs all its integrators; one to which selections
-    apply but which offers none of them is bad input (the message lists what it offers).
+    apply but which offers none of them is bad input (the message lists what it offers).  An old
+    name of an integrator (:func:`integrator_aliases`) selects the integrator by its current name.
     """
     names = []
     for item in requested or []:
         eng, sep, name = item.partition(":")
         if not sep:
-            names.append(item)
+            names.append(_current_name(engine, offered, item))
             continue
         try:
             target = resolve_engine(eng)
@@ -102,6 +128,7 @@ def select_integrators(engine: str, offered: tuple[str, ...], requested: list[st
             raise InputError(f"--integrator: unknown engine {eng!r} in {item!r}; "
                              f"known engines: {', '.join(engine_names())}") from None
         if target == engine:
+            name = _current_name(engine, offered, name)
             if not any(o.lower() == name.lower() for o in offered):
                 raise InputError(f"--integrator: {engine} has no integrator {name!r}; "
                                  f"it offers: {', '.join(offered)}")

@@ -127,7 +127,7 @@ PINNED_SUITE_CASES: dict[str, tuple[tuple[float, int], ...]] = {
     "world_torque": ((0.01, 200), (0.001, 2000)),
 }
 PINNED_SUITE_INTEGRATORS: dict[str, tuple[str, ...]] = {
-    "reference": ("euler-matrix", "euler-matrix-gs", "euler-quat", "symplectic-euler",
+    "reference": ("euler-matrix", "euler-matrix-gs", "euler-quat", "lie-euler",
                   "semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro", "rk4"),
     "mujoco": ("Euler", "RK4", "implicit", "implicitfast", "discrete"),
     "pybullet": ("multibody", "maximal"),

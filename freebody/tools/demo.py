@@ -34,14 +34,14 @@ from ..reference_impl.truth import truth_trajectory
 DEMOS = ("integrators", "quiz", "dzhanibekov")
 
 # The lecture's schemes, in the order they are taught, with one colour each on every slide.
-LECTURE_SCHEMES = ("euler-matrix", "euler-matrix-gs", "euler-quat", "symplectic-euler",
+LECTURE_SCHEMES = ("euler-matrix", "euler-matrix-gs", "euler-quat", "lie-euler",
                    "symplectic-splitting", "implicit-midpoint", "rk4")
 SCHEME_COLORS = {"euler-matrix": "#d62728", "euler-matrix-gs": "#ff7f0e", "euler-quat": "#9467bd",
-                 "symplectic-euler": "#1f77b4", "symplectic-splitting": "#8c564b",
+                 "lie-euler": "#1f77b4", "symplectic-splitting": "#8c564b",
                  "implicit-midpoint": "#17becf", "rk4": "#2ca02c"}
-# Torque-free, euler-quat and symplectic-euler are both an explicit Euler step on the rotations
+# Torque-free, euler-quat and lie-euler are both an explicit Euler step on the rotations
 # (see reference_impl.integrators) and nearly coincide: dashed so that both stay visible.
-SCHEME_STYLES = {"symplectic-euler": (0, (4, 3))}
+SCHEME_STYLES = {"lie-euler": (0, (4, 3))}
 # The schemes of the zoomed lower panel of the energy figure: the bounded ones, on their own scale.
 # (implicit-midpoint keeps the energy to its solver's tolerance: a flat line at 0)
 ENERGY_ZOOM_SCHEMES = ("symplectic-splitting", "implicit-midpoint", "rk4")
@@ -297,12 +297,13 @@ The energy error with its sign, (E(t) - E(0)) / KE(0); the exact motion keeps it
 line). Explicit Euler *gains* energy, step after step: on the matrix (`euler-matrix`) most, because
 each step moves R along the tangent, off the rotations, and the body's apparent inertia changes with
 it; Gram-Schmidt (`euler-matrix-gs`) removes that part, and what is left still drifts. `euler-quat` and
-`symplectic-euler` nearly coincide (drawn dashed over each other): without torque L never changes,
+`lie-euler` nearly coincide (drawn dashed over each other): without torque L never changes,
 so updating the momenta first changes nothing, and what is left is an explicit Euler step on the
-rotations, w taken at the old orientation. The name fits the translation only: symplectic Euler
-bounds the energy of a separable H = T(p) + V(x), but the rotational energy 1/2 L . R I_b^-1 R^T L
-depends on the orientation R as well as on L, and a symplectic Euler step would need w at the *new*
-R (an implicit step).
+rotations (the Lie-Euler method), w taken at the old orientation. Momenta first is symplectic Euler
+for the translation only: it bounds the energy of a separable H = T(p) + V(x), but the rotational
+energy 1/2 L . R I_b^-1 R^T L depends on the orientation R as well as on L, and a symplectic Euler
+step would need w at the *new* R (an implicit step). (Before freebody 0.2.0 `lie-euler` was called
+`symplectic-euler`, a name that still works.)
 
 `symplectic-splitting` is symplectic: it splits the rotational energy into parts whose motions are
 exact rotations (a sphere's about L, corrections about two principal axes) and composes them
