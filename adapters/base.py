@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import re
 import importlib.util
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
@@ -78,6 +79,9 @@ class Adapter(ABC):
       precisions : floating-point precisions offered ("float64" unless the engine says otherwise).
       conventions : engine convention facts shown by ``freebody conventions``.
       compare_with : the engine this one ports, compared run by run (or None).
+      supported_versions : the engine versions this adapter can drive, a version specifier
+        (``">=6.19"``), or None for any; a run on another version is ``skipped``, naming the range
+        (see :func:`unsupported_version`).
 
     An instance is one run: ``Adapter(problem, dt, integrator, precision)`` checks the integrator
     and precision (:class:`UnsupportedOption`), builds the load schedule ``self.loads`` and calls
@@ -97,6 +101,7 @@ class Adapter(ABC):
     # Another engine this one ports (e.g. mjx -> mujoco): each run is also compared with that
     # engine's run of the same integrator and dt (results.json "vs_engine").
     compare_with: ClassVar[str | None] = None
+    supported_versions: ClassVar[str | None] = None
 
     def __init__(self, problem: Problem, dt: float, integrator: str, precision: str = "float64"):
         offered = self.offered_integrators()
@@ -287,6 +292,11 @@ class EngineEntry(NamedTuple):
     cache_env : an environment variable naming a folder where the engine keeps compiled code
         (JIT engines): worker processes of one invocation are given one shared folder.  None for
         an engine that keeps a persistent cache of its own (mjx).
+    package : the engine's pip distribution, which a versioned engine name pins
+        (``mujoco==3.1.6``, see :func:`split_engine_name`); None: ``import_name``.
+    environment : a pip requirement: the engine always runs in an isolated environment of its own
+        holding it (an engine whose package pins conflict with another engine's, e.g. one that
+        pins an older MuJoCo), see :mod:`freebody.run.engine_envs`; None: this environment.
     """
 
     import_name: str
@@ -294,6 +304,13 @@ class EngineEntry(NamedTuple):
     cls: str
     install_hint: str = "pip install 'freebody[engines]'"
     cache_env: str | None = None
+    package: str | None = None
+    environment: str | None = None
+
+    @property
+    def distribution(self) -> str:
+        """The pip distribution of the engine."""
+        return self.package or self.import_name
 
 
 # engine name -> its entry.  Order = report order.
@@ -302,11 +319,11 @@ ENGINES: dict[str, EngineEntry] = {
                              "always installed"),
     "mujoco": EngineEntry("mujoco", "freebody.adapters.mujoco_adapter", "MujocoAdapter"),
     "pybullet": EngineEntry("pybullet", "freebody.adapters.pybullet_adapter", "PybulletAdapter"),
-    "dart": EngineEntry("dartpy", "freebody.adapters.dart_adapter", "DartAdapter"),
+    "dart": EngineEntry("dartpy", "freebody.adapters.dart_adapter", "DartAdapter", package="dartpy"),
     # no cache_env: the mjx adapter keeps JAX's compilations in a persistent per-user folder
     # (JAX_COMPILATION_CACHE_DIR or ~/.cache/freebody/jax) shared by every process and invocation
     "mjx": EngineEntry("jax", "freebody.adapters.mjx_adapter", "MjxAdapter",
-                       "pip install 'freebody[jax]'"),
+                       "pip install 'freebody[jax]'", package="mujoco-mjx"),
 }
 
 # The engine whose runs are freebody's own reference maps: shared with scheme identification (so
@@ -318,7 +335,7 @@ BENCH_YARDSTICK = "mujoco"
 
 def install_hint(name: str) -> str:
     """How to install an engine (from its registry entry)."""
-    return registry()[resolve_engine(name)].install_hint
+    return registry()[base_engine(name)].install_hint
 
 
 def _entry_point_engines() -> dict[str, EngineEntry]:
@@ -343,17 +360,116 @@ def engine_names() -> list[str]:
     return list(registry())
 
 
-def resolve_engine(name: str) -> str:
-    """The registered spelling of an engine name (case-insensitive); UnknownEngine otherwise."""
-    for known in registry():
-        if known.lower() == name.lower():
+# A versioned engine name: the engine (or its pip distribution) then a PEP 440 version specifier,
+# e.g. "mujoco==3.1.6", "dartpy>=6.19,<6.20"
+_VERSIONED = re.compile(r"^\s*([A-Za-z0-9][A-Za-z0-9._-]*)\s*((?:===|~=|==|!=|<=|>=|<|>).*)?$")
+_SPECIFIER = re.compile(r"^(===|~=|==|!=|<=|>=|<|>)\s*([A-Za-z0-9.*+!_-]+)$")  # one clause
+
+
+def split_engine_name(name: str) -> tuple[str, str]:
+    """(engine as given, version specifier) of an engine name: ``"mujoco==3.1.6"`` ->
+    ``("mujoco", "==3.1.6")``, ``"mujoco"`` -> ``("mujoco", "")``.  The specifier is normalised
+    (no spaces); UnknownEngine for a malformed one."""
+    m = _VERSIONED.match(name)
+    if m is None:
+        raise UnknownEngine(f"{name!r} is neither an engine name nor ENGINE==VERSION "
+                            f"(known engines: {', '.join(engine_names())})")
+    raw = m.group(2) or ""
+    clauses = raw.split(",") if raw.strip() else []
+    for clause in clauses:
+        if not _SPECIFIER.match(clause.strip()) or " " in clause.strip().lstrip("=<>!~").strip():
+            raise UnknownEngine(f"{name!r}: {clause.strip()!r} is not a version specifier (e.g. ==3.1.6, "
+                                f">=6.19,<6.20)")
+    spec = ",".join(re.sub(r"\s+", "", c) for c in clauses)
+    return m.group(1), spec
+
+
+def base_engine(name: str) -> str:
+    """The registered engine of a name, versioned or not (case-insensitive; an engine's pip
+    distribution works too: ``dartpy==6.19.0`` -> ``"dart"``); UnknownEngine otherwise."""
+    given, _ = split_engine_name(name)
+    reg = registry()
+    for known in reg:
+        if known.lower() == given.lower():
             return known
-    raise UnknownEngine(f"unknown engine {name!r}; known engines: {', '.join(engine_names())}")
+    for known, entry in reg.items():  # its pip distribution (dartpy, mujoco-mjx)
+        if entry.distribution.lower().replace("_", "-") == given.lower().replace("_", "-"):
+            return known
+    raise UnknownEngine(f"unknown engine {given!r}; known engines: {', '.join(engine_names())}")
+
+
+def resolve_engine(name: str) -> str:
+    """The registered spelling of an engine name (case-insensitive), with its version specifier
+    if it has one (``"MuJoCo == 3.1.6"`` -> ``"mujoco==3.1.6"``); UnknownEngine otherwise."""
+    return base_engine(name) + split_engine_name(name)[1]
+
+
+def engine_requirement(name: str) -> str | None:
+    """The pip requirement of the isolated environment an engine's runs need (its distribution
+    and version specifier for a versioned name, the registry's ``environment`` for an engine
+    that always runs in its own), or None: this environment."""
+    base = base_engine(name)
+    spec = split_engine_name(name)[1]
+    entry = registry()[base]
+    if spec:
+        if base == REFERENCE_ENGINE:
+            raise UnknownEngine(f"{name!r}: the reference engine is freebody itself and has no versions")
+        return entry.distribution + spec
+    return entry.environment
+
+
+def version_in(version: str, specifier: str) -> bool | None:
+    """Whether a version satisfies a PEP 440 specifier of comparison clauses (``">=6.19,<7"``),
+    comparing release numbers (``"3.1.6"`` -> (3, 1, 6); a pre-release counts as its release);
+    None when either cannot be read.  Enough for an adapter's supported range, without packaging."""
+    def release(v: str):
+        m = re.match(r"^\s*v?(\d+(?:\.\d+)*)", v)
+        return tuple(int(x) for x in m.group(1).split(".")) if m else None
+
+    def cmp(a, b):
+        n = max(len(a), len(b))
+        a, b = a + (0,) * (n - len(a)), b + (0,) * (n - len(b))
+        return (a > b) - (a < b)
+
+    have = release(version)
+    if have is None:
+        return None
+    for clause in filter(None, specifier.replace(" ", "").split(",")):
+        m = _SPECIFIER.match(clause)
+        if m is None:
+            return None
+        op, want = m.groups()
+        if op in ("==", "!=", "===") and want.endswith(".*"):
+            w = release(want[:-2])
+            ok = w is not None and have[:len(w)] == w
+            ok = ok if op != "!=" else not ok
+        else:
+            w = release(want)
+            if w is None:
+                return None
+            c = cmp(have, w)
+            ok = {"==": c == 0, "===": c == 0, "!=": c != 0, "<=": c <= 0, ">=": c >= 0, "<": c < 0,
+                  ">": c > 0, "~=": c >= 0 and have[:max(1, len(w) - 1)] == w[:max(1, len(w) - 1)]}[op]
+        if not ok:
+            return False
+    return True
+
+
+def unsupported_version(cls, version: str | None) -> str | None:
+    """Why the adapter class cannot drive this engine version (the reason a run is skipped), or
+    None: the version is in ``cls.supported_versions`` (or either is unknown)."""
+    supported = getattr(cls, "supported_versions", None)
+    if not supported or version is None or version_in(str(version), supported) is not False:
+        return None
+    entry = registry().get(getattr(cls, "name", ""), None)
+    dist = entry.distribution if entry is not None else getattr(cls, "name", "the engine")
+    return (f"{cls.name} {version} is not supported: freebody's {cls.name} adapter drives "
+            f"{dist}{supported} (e.g. --engine '{cls.name}{supported.split(',')[0]}')")
 
 
 def is_available(name: str) -> bool:
     """Whether the engine's package can be found, without importing it."""
-    import_name = registry()[resolve_engine(name)].import_name
+    import_name = registry()[base_engine(name)].import_name
     return importlib.util.find_spec(import_name) is not None
 
 
@@ -363,7 +479,7 @@ def load_adapter(name: str) -> type[Adapter]:
     Raises EngineMissing when the engine's own package is not installed (only that ImportError:
     a broken install raises its real error, to be recorded as a failed run).
     """
-    name = resolve_engine(name)
+    name = base_engine(name)
     entry = registry()[name]
     import_name, module, cls, hint = entry.import_name, entry.module, entry.cls, entry.install_hint
     try:

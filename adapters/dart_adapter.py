@@ -122,6 +122,8 @@ def _coordinate_frames() -> str:
 class DartAdapter(Adapter):
     name: ClassVar[str] = "dart"
     import_name: ClassVar[str] = "dartpy"
+    # 6.16-6.18 lack World.getDeactivationOptions (every run failed with an AttributeError)
+    supported_versions: ClassVar[str | None] = ">=6.19"
     integrators: ClassVar[tuple[str, ...]] = ("semi-implicit-euler",)
     precisions: ClassVar[tuple[str, ...]] = ("float64",)
     conventions: ClassVar[dict[str, str]] = {

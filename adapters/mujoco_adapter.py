@@ -100,6 +100,8 @@ def _fmt(a) -> str:
 class MujocoAdapter(Adapter):
     name: ClassVar[str] = "mujoco"
     import_name: ClassVar[str] = "mujoco"
+    # the oldest release the adapter was run on (3.1.6: no auto-reset switch, see build())
+    supported_versions: ClassVar[str | None] = ">=3.1"
     integrators: ClassVar[tuple[str, ...]] = tuple(_INTEGRATOR_ENUM)
     precisions: ClassVar[tuple[str, ...]] = ("float64",)
     conventions: ClassVar[dict[str, str]] = {

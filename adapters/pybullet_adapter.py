@@ -101,6 +101,7 @@ class _EngineLoads:
 class PybulletAdapter(Adapter):
     name: ClassVar[str] = "pybullet"
     import_name: ClassVar[str] = "pybullet"
+    supported_versions: ClassVar[str | None] = ">=3.2.5"  # as the engines extra requires
     integrators: ClassVar[tuple[str, ...]] = ("multibody", "maximal")
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "(x, y, z, w), Hamilton, body -> world; converted to (w, x, y, z)",

@@ -1,4 +1,7 @@
-"""``freebody compare BASELINE CURRENT``: what changed between two sets of results; exit 1 on a regression."""
+"""``freebody compare BASELINE CURRENT``: what changed between two sets of results; exit 1 on a regression.
+
+``freebody compare RESULTS --engine mujoco==3.1.6 --against mujoco==4.0.0``: the same verdicts
+between two engines (two versions of one) of one results file (:mod:`freebody.results.versions`)."""
 from __future__ import annotations
 
 from .argtypes import nonnegative_float as _tolerance
@@ -14,7 +17,8 @@ def add_parser(sub) -> None:
                                    "failed/diverged or missing, another experiment under the same name, a "
                                    "changed scheme or order); 2: unusable input.")
     p.add_argument("baseline", metavar="BASELINE", help="a baseline file, a results.json or a run directory")
-    p.add_argument("current", metavar="CURRENT", help="a run directory or a results.json")
+    p.add_argument("current", metavar="CURRENT", nargs="?",
+                   help="a run directory or a results.json (not with --against)")
     p.add_argument("--rtol", type=_tolerance, metavar="X", help="relative tolerance for every metric")
     p.add_argument("--atol", type=_tolerance, metavar="X",
                    help="absolute tolerance for every metric (in each metric's unit)")
@@ -24,6 +28,9 @@ def add_parser(sub) -> None:
                    help="fail on any change beyond tolerance, improvements included")
     p.add_argument("--engine", action="append", metavar="NAME",
                    help="compare only this engine's runs (repeatable; both sides)")
+    p.add_argument("--against", metavar="ENGINE",
+                   help="compare two engines of ONE results file: the runs of --engine (the baseline) "
+                        "with those of ENGINE, e.g. RESULTS --engine mujoco==3.1.6 --against mujoco==4.0.0")
     p.add_argument("--case", action="append", metavar="NAME",
                    help="compare only this case's runs (repeatable; both sides)")
     p.add_argument("--json", action="store_true",
@@ -38,11 +45,28 @@ def run(args) -> int:
     from ..results.verdict import junit_xml, write_json
 
     tols = resolve_tolerances(args.tolerances, args.rtol, args.atol)
-    base = load_side(args.baseline, "baseline")
-    cur = load_side(args.current, "current")
-    result = compare(base, cur, tols, sources=(str(args.baseline), str(args.current)), strict=args.strict,
-                     engines=args.engine, cases=args.case)
-    for option, wanted, field in (("--engine", args.engine, "engine"), ("--case", args.case, "case")):
+    if args.against is not None:
+        from ..results.versions import split_sides
+
+        if args.current is not None:
+            raise InputError("--against: compares two engines of one results file; give RESULTS only "
+                             f"(not {args.current})")
+        if not args.engine or len(args.engine) != 1:
+            raise InputError("--against: needs one --engine, the baseline side (e.g. RESULTS --engine "
+                             "mujoco==3.1.6 --against mujoco==4.0.0)")
+        doc = load_side(args.baseline, "results")
+        base, cur = split_sides(doc, args.engine[0], args.against)
+        sources = (f"{args.baseline} [{args.engine[0]}]", f"{args.baseline} [{args.against}]")
+        engines = None
+    else:
+        if args.current is None:
+            raise InputError("CURRENT: missing (freebody compare BASELINE CURRENT, or RESULTS --engine A "
+                             "--against B)")
+        base = load_side(args.baseline, "baseline")
+        cur = load_side(args.current, "current")
+        sources, engines = (str(args.baseline), str(args.current)), args.engine
+    result = compare(base, cur, tols, sources=sources, strict=args.strict, engines=engines, cases=args.case)
+    for option, wanted, field in (("--engine", engines, "engine"), ("--case", args.case, "case")):
         known = {r.get(field) for r in (base.get("runs") or []) + (cur.get("runs") or [])}
         unknown = [w for w in wanted or () if w not in known]
         if unknown:

@@ -19,8 +19,10 @@ def add_parser(sub) -> None:
                        description="Run CASE|PATH ... (default: every bundled case) on every selected "
                                    "engine and integrator at every time step.")
     p.add_argument("cases", nargs="*", metavar="CASE|PATH", help="bundled case names or TOML files")
-    p.add_argument("--engine", action="append", metavar="NAME",
-                   help="engine to run (repeatable); default: every available engine")
+    p.add_argument("--engine", action="append", metavar="NAME[==VERSION]",
+                   help="engine to run (repeatable); default: every available engine.  ENGINE==VERSION "
+                        "(any pip version specifier) runs that version in an isolated environment "
+                        "that freebody builds on first use and caches (freebody envs list)")
     p.add_argument("--integrator", action="append", metavar="[ENGINE:]NAME",
                    help="integrator (repeatable, case-insensitive); NAME applies to every engine "
                         "offering it, ENGINE:NAME to one engine; default: all")
@@ -63,15 +65,16 @@ def run(args) -> int:
     problems = [load_case(n) for n in names]
     check_run_lengths(problems, args.dt, args.duration)  # at most MAX_STEPS_PER_RUN steps a run
     engines = select_engines(args.engine)
-    specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision,
-                   sources=[str(n) for n in names])
-    out_dir = out_folder(args.out)  # '' is bad input, not the current folder
     from ..run.budget import check_run
     from ..run.suite import check_options, default_jobs
 
     jobs = args.jobs or (1 if args.no_isolation else default_jobs())
     check_options(jobs, args.timeout, args.save_every, args.executor, args.scheduler,
-                  isolate=not args.no_isolation)  # before the output folder is touched
+                  isolate=not args.no_isolation, engines=engines)  # before an environment is built
+    # an engine named with a version gets its isolated environment here (built on first use)
+    specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision,
+                   sources=[str(n) for n in names])
+    out_dir = out_folder(args.out)  # '' is bad input, not the current folder (before it is touched)
     check_run(specs, jobs, force=args.force_large)
     with output_lock(out_dir):  # one freebody process writes DIR at a time, reports included
         doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet, save_every=args.save_every,

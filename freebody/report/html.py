@@ -8,6 +8,7 @@ from pathlib import Path
 
 from . import data as rd
 from . import markdown as md
+from ..results.versions import VERSIONS_NOTE, side_by_side, version_table
 from ..run.records import Status
 
 CSS = """
@@ -104,6 +105,10 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
     reproduced reference maps, ported engines."""
     p = []
     p.append("<h2>Engines</h2>" + table(("engine", "version", "runs"), rd.engine_versions(doc)))
+    versions = side_by_side(doc)
+    if versions:
+        p.append("<h2>Engine versions side by side</h2>"
+                 f'<p class="note">{escape(VERSIONS_NOTE)}</p>' + table(*version_table(versions)))
     p.append("<h2>Worst orientation error per case and engine run</h2>"
              '<p class="note">Colour: the largest orientation error (rad, log scale) over time and over the '
              "time steps of the cell's ok runs. Dark: a run diverged; red: a run failed; grey: skipped.</p>")

@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import data as rd
+from ..results.versions import VERSIONS_NOTE, side_by_side, version_table
 from ..run.convergence import SHORT_NAMES
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL,
                            ORIENTATION_ERROR_MAX, POSITION_ERROR_MAX, ROTATION_ORTHONORMALITY_ERROR_MAX)
@@ -108,6 +109,9 @@ def front_matter(doc: dict, source: str) -> list[str]:
     if doc.get("incomplete"):
         out += ["> **Incomplete:** the run was interrupted; only the finished runs are shown.", ""]
     out += ["## Engines", "", md_table(("engine", "version", "runs"), rd.engine_versions(doc)), ""]
+    versions = side_by_side(doc)
+    if versions:
+        out += ["## Engine versions side by side", "", VERSIONS_NOTE, "", md_table(*version_table(versions)), ""]
 
     cases = list(rd.by_case(runs))
     cells = rd.worst_cells(runs)

@@ -133,16 +133,26 @@ def describe_exit(returncode: int | None) -> str:
 
 
 class Worker:
-    """One worker process and its two pipes."""
+    """One worker process and its two pipes.
 
-    def __init__(self, options: dict):
+    python : the interpreter it runs (None: this one; else an isolated engine environment's, which
+        holds its own copy of freebody: its ``init`` carries no ``sys_path``)."""
+
+    def __init__(self, options: dict, python: str | None = None):
         r_task, w_task = os.pipe()
         r_res, w_res = os.pipe()
+        self.python = python
+        environ = os.environ
+        if python is not None:  # nothing of this environment on its sys.path: -P, no PYTHONPATH
+            from ..environments import clean_environ
+
+            options, environ = {**options, "sys_path": None}, clean_environ()
         try:
             self.proc = subprocess.Popen(
-                [sys.executable, "-m", "freebody.run.worker", str(r_task), str(w_res)],
+                [python or sys.executable, *(["-P"] if python else []), "-m", "freebody.run.worker",
+                 str(r_task), str(w_res)],
                 pass_fds=(r_task, w_res), stdin=subprocess.DEVNULL, stdout=2,  # stray prints: to stderr
-                process_group=0, env={**os.environ, **options.get("env", {})})
+                process_group=0, env={**environ, **options.get("env", {})})
         finally:
             os.close(r_task)
             os.close(w_res)
@@ -201,18 +211,24 @@ class LocalPool:
     share_truths : share truths and reference maps between workers through a temporary directory.
     registry : the adapter registry the workers use (default: this process's,
         :data:`freebody.adapters.base.ENGINES`, so an engine registered at run time works there too).
+    interpreters : engine -> the Python interpreter of its isolated environment
+        (:mod:`.engine_envs`): its runs go only to workers running that interpreter; the others to
+        workers of this one.  With several interpreters the ``jobs`` workers are shared: an idle
+        worker of an interpreter with no run ready is stopped when another has runs ready and no worker.
     """
 
     def __init__(self, jobs: int, timeout: float | None = None, engines=(), share_truths: bool = True,
-                 registry: dict | None = None):
+                 registry: dict | None = None, interpreters: dict[str, str] | None = None):
         from ..adapters import base
 
+        self.interpreters = dict(interpreters or {})
         self.jobs = max(1, int(jobs))
         self.timeout = timeout
         self.workers: list[Worker] = []
         self.store = tempfile.mkdtemp(prefix="freebody-truths-") if share_truths else None
         self.options = {"sys_path": list(sys.path), "engines": dict(base.ENGINES if registry is None else registry),
-                        "preimport": list(engines), "store": self.store, "env": {}}
+                        "preimport": [e for e in engines if e not in self.interpreters], "store": self.store,
+                        "env": {}}
         for entry in self.options["engines"].values():
             var = getattr(entry, "cache_env", None)
             if self.store is not None and var and var not in os.environ:
@@ -239,7 +255,7 @@ class LocalPool:
             on_done(task.index, payload)
 
         while pending or any(w.task for w in self.workers):
-            self._staff(len(pending) + sum(1 for w in self.workers if w.task))
+            self._staff(pending, finished, truth_ready)
             if not self.workers:  # no worker could be started: fail what is left, loudly
                 for t in pending:
                     done(t, failed_payload(t.run.spec, "could not start a worker process "
@@ -254,7 +270,8 @@ class LocalPool:
         """Send each idle worker a task it can start now (see _pick), taken off ``pending``."""
         for w in self.workers:
             if w.ready and w.task is None and pending:
-                t = self._pick(w, pending, finished | truth_ready, finished)
+                t = self._pick(w, [t for t in pending if self._python(t) == w.python],
+                               finished | truth_ready, finished)
                 if t is None:
                     continue
                 pending.remove(t)
@@ -316,13 +333,46 @@ class LocalPool:
                     found.setdefault(2, t)
         return found.get(1) or found.get(2)
 
-    def _staff(self, needed: int) -> None:
-        """Start workers up to min(jobs, needed)."""
-        while len(self.workers) < min(self.jobs, needed):
+    def _python(self, task: Task) -> str | None:
+        """The interpreter of the worker a task needs (None: this one)."""
+        return self.interpreters.get(task.run.spec.engine)
+
+    def _staff(self, pending: list[Task], finished: set[int], truth_ready: set[int]) -> None:
+        """Start workers up to min(jobs, runs pending or running), each for the interpreter whose
+        runs have the fewest workers per run left; with every slot taken, stop an idle worker whose
+        interpreter has no run ready when another interpreter has runs ready and no worker."""
+        left: dict[str | None, int] = {}
+        ready: set[str | None] = set()
+        has_truth = finished | truth_ready if self.interpreters else set()
+        for t in pending:
+            py = self._python(t)
+            left[py] = left.get(py, 0) + 1
+            if self.interpreters and t.deps <= finished and (t.truth_of is None or t.truth_of in has_truth):
+                ready.add(py)
+        for w in self.workers:
+            if w.task is not None:
+                left[w.python] = left.get(w.python, 0) + 1
+        if len(self.workers) >= self.jobs and not any(w.task is None and not w.ready for w in self.workers):
+            staffed = {w.python for w in self.workers}
+            starved = [py for py in ready if py not in staffed]
+            idle = [w for w in self.workers if w.ready and w.task is None and w.python not in ready]
+            for _ in starved[:len(idle)]:
+                w = idle.pop()
+                self.workers.remove(w)
+                w.stop()
+        while len(self.workers) < min(self.jobs, sum(left.values())):
             if self._start_failures >= WORKER_START_ATTEMPTS:
                 return
+            count: dict[str | None, int] = {}
+            for w in self.workers:
+                count[w.python] = count.get(w.python, 0) + 1
+            want = [py for py in left if left[py] > count.get(py, 0)]
+            if not want:
+                return
+            # ready interpreters first, then the one with the fewest workers per run left
+            python = min(want, key=lambda py: (py not in ready, count.get(py, 0) / left[py]))
             try:
-                self.workers.append(Worker(self.options))
+                self.workers.append(Worker(self.options, python))
             except OSError as e:
                 self._start_failures += 1
                 sys.stderr.write(f"freebody: warning: cannot start a worker process: {e}\n")

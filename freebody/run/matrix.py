@@ -8,15 +8,19 @@ import warnings
 import numpy as np
 
 from .. import tolerances as tol
-from ..adapters.base import UnknownEngine, engine_names, is_available, load_adapter, resolve_engine
+from ..adapters.base import (UnknownEngine, base_engine, engine_names, is_available, load_adapter,
+                             resolve_engine, split_engine_name)
 from ..adapters.capture import capture_output
 from ..errors import InputError
 from ..reference_impl.problem import Problem
+from . import engine_envs
 from .records import PRECISIONS, RunSpec
 
 
 def select_engines(requested: list[str] | None) -> list[str]:
-    """Requested engines (validated, case-insensitive), or every registered engine."""
+    """Requested engines (validated, case-insensitive; an engine may be named with a version,
+    ``mujoco==3.1.6``, run in an isolated environment: :mod:`.engine_envs`), or every registered
+    engine."""
     if not requested:
         return engine_names()
     try:
@@ -32,7 +36,11 @@ def select_engines(requested: list[str] | None) -> list[str]:
 
 def engine_integrators(engine: str) -> tuple[str, ...] | None:
     """Integrators the installed engine offers (default first), or None if it is not installed or
-    its adapter fails to load (its runs then record skipped or failed, with the reason)."""
+    its adapter fails to load (its runs then record skipped or failed, with the reason).  An isolated
+    engine is asked in its environment."""
+    if engine_envs.isolated(engine):
+        info = engine_envs.describe(engine)
+        return tuple(info["integrators"]) if info.get("integrators") else None
     if not is_available(engine):
         return None
     try:
@@ -45,6 +53,9 @@ def engine_integrators(engine: str) -> tuple[str, ...] | None:
 def engine_precisions(engine: str) -> tuple[str, ...] | None:
     """Precisions the installed engine offers (``Adapter.precisions``), or None if it is not
     installed or its adapter fails to load."""
+    if engine_envs.isolated(engine):
+        info = engine_envs.describe(engine)
+        return tuple(info["precisions"]) if info.get("precisions") else None
     if not is_available(engine):
         return None
     try:
@@ -110,7 +121,8 @@ def _current_name(engine: str, offered: tuple[str, ...], name: str) -> str:
 
 
 def select_integrators(engine: str, offered: tuple[str, ...], requested: list[str] | None) -> list[str]:
-    """Apply ``--integrator`` selections: NAME applies to every engine, ENGINE:NAME to one engine.
+    """Apply ``--integrator`` selections: NAME applies to every engine, ENGINE:NAME to one engine
+    (every version of it, unless ENGINE names a version: ``mujoco:RK4`` applies to ``mujoco==3.1.6``).
 
     An engine to which no selection applies runs all its integrators; one to which selections
     apply but which offers none of them is bad input (the message lists what it offers).  An old
@@ -127,7 +139,7 @@ def select_integrators(engine: str, offered: tuple[str, ...], requested: list[st
         except UnknownEngine:
             raise InputError(f"--integrator: unknown engine {eng!r} in {item!r}; "
                              f"known engines: {', '.join(engine_names())}") from None
-        if target == engine:
+        if target == engine or (not split_engine_name(target)[1] and target == base_engine(engine)):
             name = _current_name(engine, offered, name)
             if not any(o.lower() == name.lower() for o in offered):
                 raise InputError(f"--integrator: {engine} has no integrator {name!r}; "

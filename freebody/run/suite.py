@@ -22,9 +22,15 @@ EXECUTORS = ("local", "dask")
 
 
 def engine_versions(engines: list[str]) -> dict[str, str | None]:
-    """Installed engine versions (None for an engine that is not installed or fails to import)."""
+    """Installed engine versions (None for an engine that is not installed or fails to import);
+    an isolated engine's (:mod:`.engine_envs`) as its environment reports it."""
+    from . import engine_envs
+
     out = {}
     for e in engines:
+        if engine_envs.isolated(e):
+            out[e] = engine_envs.describe(e).get("version")
+            continue
         try:
             out[e] = load_adapter(e).engine_version()
         except Exception:  # missing (EngineMissing) or broken: its runs say which
@@ -70,7 +76,7 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
     """
     from .executor import plan
 
-    check_options(jobs, timeout, save_every, executor, scheduler, isolate)
+    check_options(jobs, timeout, save_every, executor, scheduler, isolate, engines)
     _check_unique(specs)
     out_path = out_folder(out_dir) if out_dir is not None else None
     bar = ProgressDisplay(len(specs), enabled=progress)
@@ -110,7 +116,7 @@ def _check_unique(specs: list[RunSpec]) -> None:
 
 
 def check_options(jobs, timeout, save_every, executor: str, scheduler: str | None,
-                   isolate: bool = True) -> None:
+                   isolate: bool = True, engines=()) -> None:
     """InputError naming the command-line option of the first unusable argument of run_specs."""
     if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs < 1:
         raise InputError(f"--jobs: must be an integer >= 1, got {jobs!r}")
@@ -121,12 +127,26 @@ def check_options(jobs, timeout, save_every, executor: str, scheduler: str | Non
         raise InputError(f"--save-every: must be 'auto' or an integer >= 1, got {save_every!r}")
     if executor not in EXECUTORS:
         raise InputError(f"--executor: must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    if executor == "dask" and engines:
+        from .engine_envs import isolated
+
+        for e in engines:
+            if isolated(e):
+                raise InputError(f"--executor dask: {e} runs in an isolated environment of its own, "
+                                 f"which dask workers do not have (use the local executor)")
     if executor == "dask" and not scheduler:
         raise InputError("--scheduler: missing; --executor dask needs the address of a dask "
                          "scheduler (e.g. tcp://127.0.0.1:8786)")
     if executor != "dask" and scheduler:
         raise InputError("--scheduler: only used with --executor dask")
     if not isolate:
+        if engines:
+            from .engine_envs import isolated
+
+            for e in engines:
+                if isolated(e):
+                    raise InputError(f"--no-isolation: {e} runs in an isolated environment of its own, "
+                                     f"in worker processes (drop --no-isolation)")
         for bad, option in ((jobs != 1, f"--jobs {jobs}"), (timeout is not None, "--timeout"),
                             (executor != "local", f"--executor {executor}")):
             if bad:
@@ -211,7 +231,10 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
     elif not isolate:
         run_serial(tasks, on_done)
     else:
-        pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines)
+        from .engine_envs import interpreters
+
+        pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines,
+                         interpreters=interpreters(engines))
         try:
             pool.run(tasks, on_done)
         finally:

@@ -1,0 +1,762 @@
+"""Isolated Python environments for engines named with a version (``--engine mujoco==3.1.6``).
+
+One environment per engine requirement: a virtual environment that holds the requested engine,
+freebody's core dependencies pinned to the versions of this process (so that the truths and the
+reference maps computed there are the same numbers as here) and a copy of freebody's own source.
+Worker processes then run ``ENV/bin/python -m freebody.run.worker`` in it (``freebody.run``).
+
+Layout of :func:`env_root` (``$FREEBODY_ENV_DIR``, else ``$XDG_CACHE_HOME/freebody/envs``, else
+``~/.cache/freebody/envs``)::
+
+    <key>/                  one environment (:func:`environment_key`: slug of the requirement + hash)
+    <key>/freebody-env.json the marker, written last: a folder without it is incomplete (rebuilt)
+    .tmp-<key>-XXXX/        an environment being built, renamed to <key>/ when complete (atomic)
+    locks/<key>.lock        fcntl lock: one process builds an environment, the others wait for it
+    logs/<key>.log          the full output of the last build's venv, pip or uv commands
+
+Design decisions:
+
+- The environment is built in a temporary sibling folder and renamed into place, so a build that is
+  interrupted (Ctrl-C, a full disk, a failed install) never leaves a folder that looks complete.
+- freebody is not installed by pip: its package trees (``freebody``, ``freebody.adapters``,
+  ``freebody.reference_impl``, ``freebody.cases``, located with importlib, so an editable install
+  of a checkout works as well as a wheel) are copied into the environment's site-packages, with a
+  small ``freebody-<version>.dist-info`` so that pip sees freebody as installed (an engine package
+  that depends on freebody does not pull another freebody from the index).  A digest of the copied
+  files is kept in the marker and compared with the current source on every use: an edited source
+  is copied again, so the environment never runs stale freebody code.
+- The core dependencies come from freebody's metadata (those without an ``extra`` marker), pinned
+  to this process's versions.  When the engine cannot be installed beside those pins (an old engine
+  needing an older numpy), the install is retried once unpinned and the marker says ``"pins":
+  false``.  When this process's core versions change, the environment is rebuilt.
+- Every command runs with ``-P`` (no script or working folder on sys.path), in the environment's
+  folder and without PYTHONPATH/PYTHONHOME, so a source checkout in the working folder cannot
+  shadow the copy.
+- Failures the user sees are one line: bad requirement text is an
+  :class:`~freebody.errors.InputError`, a failed build an :class:`EnvironmentFailed` naming the
+  requirement, pip's or uv's key error line and the install log.
+
+``python -m freebody.environments describe ENGINE`` (run by :func:`describe_engine` with the
+environment's interpreter) prints the engine's availability, version, integrators and precisions as
+one JSON line.
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import importlib.metadata
+import importlib.util
+import json
+import os
+import platform
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path, PurePosixPath
+from typing import Callable, Iterator
+
+from .errors import InputError, printable
+
+ENV_DIR_VARIABLE = "FREEBODY_ENV_DIR"
+MARKER = "freebody-env.json"
+# The package trees copied into an environment (the package-dir mapping of pyproject.toml).
+PACKAGES = ("freebody", "freebody.adapters", "freebody.reference_impl", "freebody.cases")
+# Files of those trees that are copied (source and data; never __pycache__ or numba's caches).
+SOURCE_SUFFIXES = frozenset({".py", ".toml", ".obj", ".json", ".md"})
+# What the build checks imports in the new environment.
+IMPORT_CHECK = "import freebody, freebody.adapters.base, freebody.run.worker"
+DESCRIBE_PREFIX = "freebody-describe: "
+_TMP_PREFIX = ".tmp-"
+_KEY_HASH_CHARS = 12
+_KEY_RE = re.compile(rf"^[a-z0-9][a-z0-9.-]*-[0-9a-f]{{{_KEY_HASH_CHARS}}}$")
+
+_NAME = r"[A-Za-z0-9](?:[A-Za-z0-9._-]*[A-Za-z0-9])?"
+_VERSION_CLAUSE = r"(?:~=|===|==|!=|<=|>=|<|>)[ \t]*[A-Za-z0-9.*+!_-]+"
+_REQUIREMENT_RE = re.compile(rf"[ \t]*(?P<name>{_NAME})[ \t]*"
+                             rf"(?:\[[ \t]*(?P<extras>{_NAME}(?:[ \t]*,[ \t]*{_NAME})*)?[ \t]*\])?[ \t]*"
+                             rf"(?P<spec>{_VERSION_CLAUSE}(?:[ \t]*,[ \t]*{_VERSION_CLAUSE})*)?[ \t]*")
+
+
+class EnvironmentFailed(Exception):
+    """An environment could not be created.  ``str()`` is one line: the requirement, why (pip's or
+    uv's key error line) and, when there is one, ``install log: PATH``."""
+
+    def __init__(self, requirement: str, why: str, log: Path | None = None):
+        self.requirement = requirement
+        self.why = why
+        self.log = log
+        where = f" (install log: {log})" if log is not None else ""
+        super().__init__(printable(f"cannot create the environment for {requirement}: {why}{where}"))
+
+
+@dataclass(frozen=True)
+class EngineEnvironment:
+    """A complete environment: ``requirement`` (normalised, e.g. ``mujoco==3.1.6``), its folder
+    ``path`` and its interpreter ``python`` (``path/bin/python``)."""
+
+    requirement: str
+    path: Path
+    python: Path
+
+
+@dataclass(frozen=True)
+class _Requirement:
+    """A parsed requirement: canonical distribution ``name`` and the ``normalised`` text."""
+
+    name: str
+    normalised: str
+    specifier: str
+
+
+# --- requirements and keys ------------------------------------------------------------------------
+
+def canonical_name(name: str) -> str:
+    """A distribution name as pip compares them (PEP 503): lower case, runs of ``-_.`` as ``-``."""
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def _parse(requirement: str) -> _Requirement:
+    """Parse an engine requirement (a name, optional extras and version specifiers; no URL, no
+    environment marker).  InputError (one line) when it is not one."""
+    text = requirement if isinstance(requirement, str) else ""
+    bad = InputError(f"invalid engine requirement {printable(repr(requirement))}: expected a package name "
+                     f"with optional version specifiers, e.g. mujoco==3.1.6")
+    m = _REQUIREMENT_RE.fullmatch(text)
+    if m is None:
+        raise bad
+    try:
+        from packaging.requirements import InvalidRequirement, Requirement
+    except ImportError:  # packaging is not a dependency: the regex alone decides
+        name = canonical_name(m["name"])
+        extras = sorted({canonical_name(e.strip()) for e in (m["extras"] or "").split(",") if e.strip()})
+        spec = ",".join(sorted(re.sub(r"\s+", "", c) for c in (m["spec"] or "").split(",") if c.strip()))
+    else:
+        try:
+            req = Requirement(text)
+        except InvalidRequirement:
+            raise bad from None
+        if req.url or req.marker:
+            raise bad
+        name = canonical_name(req.name)
+        extras = sorted(canonical_name(e) for e in req.extras)
+        spec = str(req.specifier)
+    normalised = name + (f"[{','.join(extras)}]" if extras else "") + spec
+    return _Requirement(name, normalised, spec)
+
+
+def normalise_requirement(requirement: str) -> str:
+    """The normalised text of an engine requirement (``MuJoCo == 3.1.6`` -> ``mujoco==3.1.6``);
+    InputError when it is not a valid requirement."""
+    return _parse(requirement).normalised
+
+
+def requirement_name(requirement: str) -> str:
+    """The canonical distribution name of an engine requirement (``MuJoCo==3.1.6`` -> ``mujoco``);
+    InputError when it is not a valid requirement."""
+    return _parse(requirement).name
+
+
+def _freebody_version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def environment_key(requirement: str) -> str:
+    """The folder name of a requirement's environment: a readable slug of the normalised
+    requirement and a short hash of (requirement, freebody version, Python major.minor, machine)."""
+    norm = normalise_requirement(requirement)
+    slug = norm.lower()
+    for op, word in (("===", "-"), ("==", "-"), ("~=", "-compat-"), ("!=", "-not-"), (">=", "-ge-"),
+                     ("<=", "-le-"), (">", "-gt-"), ("<", "-lt-")):
+        slug = slug.replace(op, word)
+    slug = re.sub(r"[^a-z0-9.]+", "-", slug).strip("-.")[:60].strip("-.") or "env"
+    identity = json.dumps([norm, _freebody_version(), f"{sys.version_info[0]}.{sys.version_info[1]}",
+                           platform.machine()])
+    return f"{slug}-{hashlib.sha256(identity.encode()).hexdigest()[:_KEY_HASH_CHARS]}"
+
+
+def env_root() -> Path:
+    """The folder of the environments: ``$FREEBODY_ENV_DIR``, else ``$XDG_CACHE_HOME/freebody/envs``
+    (an absolute XDG_CACHE_HOME only, as the XDG specification says), else
+    ``~/.cache/freebody/envs``.  Always absolute."""
+    chosen = os.environ.get(ENV_DIR_VARIABLE)
+    if chosen:
+        return Path(chosen).expanduser().absolute()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    if xdg and os.path.isabs(xdg):
+        return Path(xdg) / "freebody" / "envs"
+    return Path.home() / ".cache" / "freebody" / "envs"
+
+
+# --- freebody's source ------------------------------------------------------------------------------
+
+def source_files() -> dict[str, Path]:
+    """freebody's source and data files to copy: relative destination (``freebody/adapters/base.py``)
+    -> source file, sorted.  Each package of :data:`PACKAGES` is found with importlib (an editable
+    install maps ``freebody.adapters`` to the checkout's ``adapters/``; a wheel nests it)."""
+    files: dict[str, Path] = {}
+    for name in PACKAGES:
+        spec = importlib.util.find_spec(name)
+        if spec is None or not spec.submodule_search_locations:
+            raise EnvironmentFailed(name, f"freebody's package {name} cannot be found")
+        top = Path(list(spec.submodule_search_locations)[0])
+        prefix = PurePosixPath(*name.split("."))
+        for dirpath, dirnames, filenames in os.walk(top):
+            dirnames[:] = sorted(d for d in dirnames if d != "__pycache__" and not d.startswith("."))
+            rel_dir = Path(dirpath).relative_to(top)
+            for f in filenames:
+                if not f.startswith(".") and os.path.splitext(f)[1] in SOURCE_SUFFIXES:
+                    files[(prefix / PurePosixPath(rel_dir.as_posix()) / f).as_posix()] = Path(dirpath) / f
+    return dict(sorted(files.items()))
+
+
+def source_digest(files: dict[str, Path] | None = None) -> str:
+    """sha256 over the sorted relative paths and contents of :func:`source_files`."""
+    files = source_files() if files is None else files
+    h = hashlib.sha256()
+    for rel in sorted(files):
+        data = files[rel].read_bytes()
+        h.update(rel.encode() + b"\0" + str(len(data)).encode() + b"\0")
+        h.update(data)
+    return h.hexdigest()
+
+
+def copy_source(dest: Path, files: dict[str, Path] | None = None) -> str:
+    """Copy freebody's source (:func:`source_files`) into the folder ``dest`` (a site-packages: it
+    gets ``dest/freebody/...``); return its digest.  An existing ``dest/freebody`` is replaced by a
+    swap of folders; its ``__pycache__`` folders are kept (Python and numba check each cached
+    file against its source's time stamp and size, so only edited modules compile again)."""
+    files = source_files() if files is None else files
+    dest = Path(dest)
+    dest.mkdir(parents=True, exist_ok=True)
+    new = Path(tempfile.mkdtemp(prefix=".freebody-new-", dir=dest))
+    try:
+        for rel, src in files.items():
+            target = new / rel
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, target)
+        current = dest / "freebody"
+        if current.is_dir():
+            for cache in list(current.rglob("__pycache__")):
+                twin = new / cache.relative_to(dest)
+                if twin.parent.is_dir() and not twin.exists():
+                    os.rename(cache, twin)
+            old = Path(tempfile.mkdtemp(prefix=".freebody-old-", dir=dest))
+            os.rename(current, old / "freebody")
+            os.rename(new / "freebody", current)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.rename(new / "freebody", current)
+    finally:
+        shutil.rmtree(new, ignore_errors=True)
+    return source_digest(files)
+
+
+def _write_dist_info(site: Path, core: list[str]) -> None:
+    """A minimal ``freebody-<version>.dist-info`` in ``site``, so that pip and importlib.metadata see
+    the copied freebody as installed (with its core requirements)."""
+    info = site / f"freebody-{_freebody_version()}.dist-info"
+    info.mkdir(parents=True, exist_ok=True)
+    lines = ["Metadata-Version: 2.1", "Name: freebody", f"Version: {_freebody_version()}",
+             "Summary: freebody's source, copied by freebody.environments (not installed by pip)",
+             *(f"Requires-Dist: {r}" for r in core)]
+    (info / "METADATA").write_text("\n".join(lines) + "\n")
+    (info / "INSTALLER").write_text("freebody\n")
+
+
+# --- freebody's core dependencies --------------------------------------------------------------------
+
+def _requirement_name(text: str) -> str:
+    m = re.match(_NAME, text.strip())
+    return canonical_name(m.group(0)) if m else text.strip()
+
+
+def core_requirements() -> list[str]:
+    """freebody's core dependencies as its metadata states them (``numpy>=1.24``, ...): every
+    requirement without an ``extra`` marker (other markers evaluated when packaging is installed),
+    the marker removed."""
+    try:
+        declared = importlib.metadata.requires("freebody") or []
+    except importlib.metadata.PackageNotFoundError:
+        raise EnvironmentFailed("freebody", "freebody's dependencies are unknown: freebody is not installed "
+                                "as a package (pip install -e . in its checkout)") from None
+    core = []
+    for text in declared:
+        spec, _, marker = text.partition(";")
+        if re.search(r"\bextra\s*==", marker):
+            continue
+        if marker.strip():
+            try:
+                from packaging.markers import Marker
+            except ImportError:
+                pass
+            else:
+                if not Marker(marker.strip()).evaluate():
+                    continue
+        core.append(spec.strip())
+    return core
+
+
+def core_versions() -> dict[str, str]:
+    """Canonical name -> version installed in this process, of each core dependency."""
+    out = {}
+    for text in core_requirements():
+        name = _requirement_name(text)
+        try:
+            out[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+# --- running commands ----------------------------------------------------------------------------------
+
+def clean_environ() -> dict[str, str]:
+    """os.environ without what would put another freebody on an environment's sys.path
+    (PYTHONPATH, PYTHONHOME, PYTHONSTARTUP): for every process started with an environment's
+    interpreter (with ``-P``, in a folder that holds no freebody checkout)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME", "PYTHONSTARTUP")}
+    env["PIP_DISABLE_PIP_VERSION_CHECK"] = "1"
+    return env
+
+
+def _run_logged(cmd: list[str], log, cwd: Path | None = None) -> tuple[int, str]:
+    """Run ``cmd``, its stdout and stderr appended to the open file ``log``; (exit code, output)."""
+    log.write(f"$ {' '.join(str(c) for c in cmd)}\n")
+    log.flush()
+    proc = subprocess.run([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                          stdin=subprocess.DEVNULL, cwd=cwd, env=clean_environ())
+    out = proc.stdout.decode("utf-8", "replace")
+    log.write(out)
+    log.write(f"[exit code {proc.returncode}]\n\n")
+    log.flush()
+    return proc.returncode, out
+
+
+def find_uv() -> str | None:
+    """The ``uv`` executable (on PATH, or from the ``uv`` Python package), or None."""
+    found = shutil.which("uv")
+    if found:
+        return found
+    try:
+        import uv  # type: ignore[import-not-found]
+
+        return uv.find_uv_bin()
+    except Exception:
+        return None
+
+
+def key_error(output: str) -> str:
+    """The line of pip's or uv's output that says why it failed (``No matching distribution found
+    for mujoco==9.9``; a conflict's ``Cannot install ...``; uv's ``Because ...`` explanation)."""
+    lines = [ln.strip() for ln in output.splitlines()]
+    errors = [ln[len("ERROR:"):].strip() for ln in lines if ln.startswith("ERROR:")]
+    errors = [e for e in errors if e and not e.startswith("ResolutionImpossible")]
+    if errors:
+        return errors[-1]
+    for i, ln in enumerate(lines):  # uv: "× No solution found ...", then "╰─▶ Because ..." wrapped
+        if ln.startswith("╰─▶"):
+            text = [ln[len("╰─▶"):].strip()]
+            for more in lines[i + 1:]:
+                if not more:
+                    break
+                text.append(more)
+            return " ".join(text)
+    for ln in reversed(lines):
+        if ln.lower().startswith("error") or ln.startswith("×"):
+            return ln.lstrip("× ").strip()
+    nonblank = [ln for ln in lines if ln and not ln.startswith("[exit code")]
+    return nonblank[-1] if nonblank else "no output"
+
+
+def _not_found(why: str, name: str) -> bool:
+    """Whether the key error says that the requested distribution itself cannot be found (then
+    retrying without the pins cannot help)."""
+    m = (re.search(r"(?:No matching distribution found for|satisfies the requirement|there is no version of)"
+                   rf"\s+({_NAME})", why)
+         or re.search(rf"({_NAME}) was not found in the package registry", why))
+    return bool(m) and canonical_name(m.group(1)) == name
+
+
+# --- markers -------------------------------------------------------------------------------------------
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def _read_marker(folder: Path) -> dict | None:
+    """The marker of an environment folder, or None (missing, unreadable, not a JSON object)."""
+    try:
+        data = json.loads((folder / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _write_marker(folder: Path, data: dict) -> None:
+    """Write the marker atomically (a temporary file renamed over it)."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{MARKER}.", dir=folder)
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(data, f, indent=2, sort_keys=True)
+            f.write("\n")
+        os.replace(tmp, folder / MARKER)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def _site_packages(folder: Path) -> Path:
+    return folder / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
+
+
+@contextlib.contextmanager
+def _locked(root: Path, key: str, waiting: Callable[[], None] | None = None) -> Iterator[None]:
+    """Hold the fcntl lock of one environment (``root/locks/<key>.lock``); ``waiting()`` is called
+    once when another process holds it."""
+    import fcntl
+
+    (root / "locks").mkdir(parents=True, exist_ok=True)
+    with open(root / "locks" / f"{key}.lock", "a") as f:
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if waiting is not None:
+                waiting()
+            fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+# --- building ------------------------------------------------------------------------------------------
+
+def _usable(marker: dict | None, env: EngineEnvironment, core: dict[str, str]) -> bool:
+    """Whether a marker describes a complete environment for ``env`` built beside this process's
+    core versions, whose interpreter still exists."""
+    return (marker is not None and marker.get("requirement") == env.requirement
+            and marker.get("core") == core and os.path.exists(env.python))
+
+
+def ensure_environment(requirement: str, progress: Callable[[str], None] | None = None) -> EngineEnvironment:
+    """The environment of ``requirement`` (e.g. ``mujoco==3.1.6``), built on first use.
+
+    A complete cached environment is reused (its ``last_used`` updated; freebody's source copied
+    again when it changed).  Otherwise it is built under the environment's lock (a second process
+    waits, then reuses it).  ``progress`` receives one line per stage.  InputError for a bad
+    requirement; :class:`EnvironmentFailed` when the build fails.
+    """
+    req = _parse(requirement)
+    key = environment_key(req.normalised)
+    root = env_root()
+    path = root / key
+    env = EngineEnvironment(req.normalised, path, path / "bin" / "python")
+    say = progress or (lambda line: None)
+    files = source_files()
+    digest = source_digest(files)
+    core = core_versions()
+
+    marker = _read_marker(path)
+    if _usable(marker, env, core) and marker.get("source_digest") == digest:
+        _touch(path, marker)
+        return env
+    root.mkdir(parents=True, exist_ok=True)
+    with _locked(root, key, lambda: say(f"waiting for another freebody process creating the environment "
+                                        f"for {req.normalised}")):
+        marker = _read_marker(path)
+        if _usable(marker, env, core):
+            if marker.get("source_digest") != digest:
+                say(f"copying freebody's changed source into the environment for {req.normalised}")
+                marker["source_digest"] = copy_source(_site_packages(path), files)
+            _touch(path, marker)
+            return env
+        for leftover in root.glob(f"{_TMP_PREFIX}{key}-*"):  # of a process killed while building
+            shutil.rmtree(leftover, ignore_errors=True)
+        _build(req, env, key, files, core, say)
+    return env
+
+
+def _touch(path: Path, marker: dict) -> None:
+    """Set the marker's ``last_used`` to now (nothing when the folder is not writable)."""
+    marker["last_used"] = _now()
+    with contextlib.suppress(OSError):
+        _write_marker(path, marker)
+
+
+def _build(req: _Requirement, env: EngineEnvironment, key: str, files: dict[str, Path],
+           core: dict[str, str], say: Callable[[str], None]) -> None:
+    """Build the environment in a temporary sibling folder, check it, write its marker and rename it
+    into place (under the lock held by the caller)."""
+    started = time.monotonic()
+    root = env.path.parent
+    say(f"creating environment for {req.normalised} in {env.path} (first use; this takes a minute)")
+    (root / "logs").mkdir(parents=True, exist_ok=True)
+    log_path = root / "logs" / f"{key}.log"
+    tmp = Path(tempfile.mkdtemp(prefix=f"{_TMP_PREFIX}{key}-", dir=root))
+    try:
+        os.chmod(tmp, 0o755)  # mkdtemp's 0700 would hide a shared FREEBODY_ENV_DIR's environment
+        with open(log_path, "w") as log:
+            log.write(f"freebody {_freebody_version()}: environment for {req.normalised}, built in {tmp} "
+                      f"and renamed to {env.path}, {_now()}\n\n")
+            uv = find_uv()
+            py = tmp / "bin" / "python"
+            venv = ([uv, "venv", "--python", sys.executable, tmp] if uv
+                    else [sys.executable, "-m", "venv", tmp])
+            code, out = _run_logged(venv, log)
+            if code != 0:
+                raise EnvironmentFailed(req.normalised, f"creating the virtual environment failed: "
+                                                        f"{key_error(out)}", log_path)
+
+            def install(requirements: list[str]) -> tuple[int, str]:
+                cmd = ([uv, "pip", "install", "--python", py] if uv
+                       else [py, "-m", "pip", "install", "--disable-pip-version-check", "--no-input"])
+                return _run_logged([*cmd, *requirements], log)
+
+            say("copying freebody")
+            site = _site_packages(tmp)
+            digest = copy_source(site, files)
+            declared = core_requirements()
+            _write_dist_info(site, declared)
+
+            # each core dependency at this process's version (as declared when it is not installed here)
+            pins = [f"{n}=={core[n]}" if n in core else r
+                    for r in declared for n in [_requirement_name(r)] if n != req.name]
+            say(f"installing {' '.join([req.normalised, *pins])}")
+            code, out = install([req.normalised, *pins])
+            pinned = True
+            if code != 0:
+                why = key_error(out)
+                if _not_found(why, req.name):
+                    raise EnvironmentFailed(req.normalised, why, log_path)
+                say(f"installing beside freebody's pinned versions failed ({why.rstrip('.')}); "
+                    f"retrying without the pins")
+                unpinned = [r for r in declared if _requirement_name(r) != req.name]
+                code, out = install([req.normalised, *unpinned])
+                pinned = False
+                if code != 0:
+                    raise EnvironmentFailed(req.normalised, key_error(out), log_path)
+
+            say("checking")
+            code, out = _run_logged([py, "-P", "-c", IMPORT_CHECK], log, cwd=tmp)
+            if code != 0:
+                raise EnvironmentFailed(req.normalised, f"freebody does not import there: {key_error(out)}",
+                                        log_path)
+            installed, core_installed = _installed(py, req, core, log, tmp)
+            if installed is None:
+                raise EnvironmentFailed(req.normalised, f"{req.name} is not installed after the install",
+                                        log_path)
+            _check_version(req, installed, log_path)
+            built = time.monotonic() - started
+            log.write(f"ready in {built:.1f} s\n")
+        now = _now()
+        _write_marker(tmp, {
+            "requirement": req.normalised, "key": key, "freebody_version": _freebody_version(),
+            "python": platform.python_version(), "base_python": sys.executable,
+            "machine": platform.machine(), "installer": "uv" if uv else "pip", "pins": pinned,
+            "core": core, "core_installed": core_installed, "installed": installed,
+            "source_digest": digest, "created": now, "last_used": now, "build_seconds": round(built, 1)})
+        if env.path.exists():  # an incomplete or outdated folder
+            shutil.rmtree(env.path)
+        os.rename(tmp, env.path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    say(f"ready in {built:.0f} s")
+
+
+_INSTALLED_SCRIPT = r"""
+import importlib.metadata as m, json, re, sys
+def version(name):
+    try:
+        d = m.distribution(name)
+    except m.PackageNotFoundError:
+        return None
+    return d.metadata["Name"], d.version, d.requires or []
+engine = {}
+found = version(sys.argv[1])
+if found:
+    engine[found[0]] = found[1]
+    for r in found[2]:
+        if not re.search(r"\bextra\s*==", r):
+            dep = version(re.match(r"[A-Za-z0-9][A-Za-z0-9._-]*", r).group(0))
+            if dep:
+                engine[dep[0]] = dep[1]
+core = {n: (version(n) or (None, None))[1] for n in sys.argv[2:]}
+print(json.dumps([engine, core]))
+"""
+
+
+def _installed(py: Path, req: _Requirement, core: dict[str, str], log,
+               cwd: Path) -> tuple[dict[str, str] | None, dict[str, str | None]]:
+    """(distribution -> version in the environment of the requirement's distribution, first, and of
+    its direct dependencies, or None when it is not installed; the versions there of the core
+    dependencies, which differ from this process's when the pins were dropped)."""
+    code, out = _run_logged([py, "-P", "-c", _INSTALLED_SCRIPT, req.name, *core], log, cwd=cwd)
+    try:
+        engine, core_there = json.loads(out.strip().splitlines()[-1]) if code == 0 else (None, {})
+    except (ValueError, IndexError, TypeError):
+        return None, {}
+    return (engine if isinstance(engine, dict) and engine else None), core_there
+
+
+def _check_version(req: _Requirement, installed: dict[str, str], log: Path) -> None:
+    """EnvironmentFailed when the installed version does not satisfy the requirement (checked when
+    packaging is importable; pip and uv guarantee it anyway)."""
+    if not req.specifier:
+        return
+    try:
+        from packaging.specifiers import SpecifierSet
+    except ImportError:
+        return
+    version = next(iter(installed.values()))
+    if not SpecifierSet(req.specifier).contains(version, prereleases=True):
+        raise EnvironmentFailed(req.normalised, f"{req.name} {version} was installed, which is not "
+                                                f"{req.specifier}", log)
+
+
+# --- listing and clearing ------------------------------------------------------------------------------
+
+def _folder_size(folder: Path) -> int:
+    total = 0
+    for dirpath, _, filenames in os.walk(folder):
+        for f in filenames:
+            with contextlib.suppress(OSError):
+                total += os.lstat(os.path.join(dirpath, f)).st_size
+    return total
+
+
+def _environment_folders(root: Path) -> list[Path]:
+    """The environment folders of ``root`` (complete or not; not the temporary ones)."""
+    if not root.is_dir():
+        return []
+    return sorted(p for p in root.iterdir() if p.is_dir() and not p.is_symlink()
+                  and ((p / MARKER).is_file() or (_KEY_RE.match(p.name) and (p / "pyvenv.cfg").exists())))
+
+
+def list_environments() -> list[dict]:
+    """The complete environments of :func:`env_root`, sorted by requirement: each a dict of
+    requirement, path, size_bytes, created, last_used, freebody_version, python, installed
+    (distribution -> version of the engine's packages), source_digest, pins (whether freebody's
+    core dependencies are pinned to this process's versions) and core_installed (their versions)."""
+    out = []
+    for folder in _environment_folders(env_root()):
+        marker = _read_marker(folder)
+        if marker is None:
+            continue
+        out.append({"requirement": marker.get("requirement"), "path": str(folder),
+                    "size_bytes": _folder_size(folder), "created": marker.get("created"),
+                    "last_used": marker.get("last_used"), "freebody_version": marker.get("freebody_version"),
+                    "python": marker.get("python"), "installed": marker.get("installed") or {},
+                    "source_digest": marker.get("source_digest"), "pins": marker.get("pins"),
+                    "core_installed": marker.get("core_installed") or {}})
+    return sorted(out, key=lambda e: (str(e["requirement"]), e["path"]))
+
+
+def clear_environments(requirements: list[str] | None = None) -> list[Path]:
+    """Remove every environment (``None``; also the leftovers of interrupted builds) or those of
+    the named requirements (any freebody or Python version); return the removed folders.  Each is
+    removed under its lock (a build in progress is waited for).  Only folders that are
+    environments are touched, whatever else :func:`env_root` holds."""
+    root = env_root()
+    wanted = None if requirements is None else {normalise_requirement(r) for r in requirements}
+    keys = set() if wanted is None else {environment_key(r) for r in wanted}
+    removed = []
+    for folder in _environment_folders(root):
+        if wanted is not None and folder.name not in keys \
+                and (_read_marker(folder) or {}).get("requirement") not in wanted:
+            continue
+        with _locked(root, folder.name):
+            if folder.exists():
+                shutil.rmtree(folder)
+                removed.append(folder)
+        with contextlib.suppress(OSError):
+            (root / "logs" / f"{folder.name}.log").unlink()
+    if wanted is None and root.is_dir():
+        for leftover in sorted(root.glob(f"{_TMP_PREFIX}*")):
+            key = leftover.name[len(_TMP_PREFIX):].rsplit("-", 1)[0]
+            if leftover.is_dir() and _KEY_RE.match(key):
+                with _locked(root, key):
+                    if leftover.exists():
+                        shutil.rmtree(leftover)
+                        removed.append(leftover)
+    return removed
+
+
+# --- describing an engine in an environment ------------------------------------------------------------
+
+def describe_engine(env: EngineEnvironment, engine: str, timeout: float = 300) -> dict:
+    """What the environment's freebody says of ``engine`` (a name, versioned or not): {"engine",
+    "available", "version", "integrators", "precisions", "error", "unsupported"} (``unsupported``:
+    why freebody's adapter cannot drive that version, or None), from ``python -m
+    freebody.environments describe ENGINE`` run with the environment's interpreter.  A crash or a
+    timeout is ``available: False`` with the reason in ``error``."""
+    failed = {"engine": engine, "available": False, "version": None, "integrators": None,
+              "precisions": None, "unsupported": None}
+    try:
+        proc = subprocess.run([str(env.python), "-P", "-m", "freebody.environments", "describe", engine],
+                              capture_output=True, stdin=subprocess.DEVNULL, cwd=env.path,
+                              env=clean_environ(), timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {**failed, "error": f"describing {engine} timed out after {timeout:g} s"}
+    except OSError as e:
+        return {**failed, "error": f"cannot run {env.python}: {e.strerror or e}"}
+    for line in reversed(proc.stdout.decode("utf-8", "replace").splitlines()):
+        if line.startswith(DESCRIBE_PREFIX):
+            try:
+                data = json.loads(line[len(DESCRIBE_PREFIX):])
+            except ValueError:
+                break
+            if isinstance(data, dict):
+                return data
+    stderr = [ln for ln in proc.stderr.decode("utf-8", "replace").splitlines() if ln.strip()]
+    why = stderr[-1].strip() if stderr else f"exit code {proc.returncode}"
+    return {**failed, "error": f"describing {engine} failed: {why}"}
+
+
+def _describe(engine: str) -> dict:
+    """The description of ``engine`` in this process (see :func:`describe_engine`)."""
+    from .adapters import base
+    from .adapters.base import EngineMissing, UnknownEngine, is_available, load_adapter
+    from .adapters.capture import capture_output
+
+    out = {"engine": engine, "available": False, "version": None, "integrators": None,
+           "precisions": None, "error": None, "unsupported": None}
+    try:
+        with capture_output():  # engine banners must not reach stdout, which carries the JSON
+            if not is_available(engine):
+                raise EngineMissing(f"{engine} is not installed in this environment")
+            cls = load_adapter(engine)
+            version = str(cls.engine_version())
+            out.update(version=version, integrators=list(cls.offered_integrators()),
+                       precisions=list(cls.precisions), available=True)
+            unsupported = getattr(base, "unsupported_version", None)  # the adapter's version range
+            out["unsupported"] = unsupported(cls, version) if unsupported is not None else None
+    except UnknownEngine as e:
+        out["error"] = str(e.args[0]) if e.args else str(e)
+    except Exception as e:
+        out["error"] = str(e) if isinstance(e, EngineMissing) else f"{type(e).__name__}: {e}"
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m freebody.environments describe ENGINE``: one JSON line prefixed with
+    :data:`DESCRIBE_PREFIX` on stdout."""
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 2 or argv[0] != "describe":
+        sys.stderr.write("usage: python -m freebody.environments describe ENGINE\n")
+        return 2
+    sys.stdout.write(DESCRIBE_PREFIX + json.dumps(_describe(argv[1])) + "\n")
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

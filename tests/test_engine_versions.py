@@ -1,0 +1,233 @@
+"""Engines named with a version (``--engine mujoco==3.1.6``): names, supported ranges, where their
+runs execute, and the side-by-side readings of one results file (compare --against, versions).
+
+The isolated environments themselves are built in tests/test_environments.py; the end-to-end run
+of an old MuJoCo in a real environment is the slow test at the end of this file."""
+from __future__ import annotations
+
+import copy
+import importlib.metadata
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+from freebody.adapters.base import (UnknownEngine, base_engine, engine_requirement, resolve_engine,
+                                    split_engine_name, unsupported_version, version_in)
+from freebody.adapters.reference import ReferenceAdapter
+from freebody.cli import main
+from freebody.errors import InputError
+from freebody.input.casefile import load_case
+from freebody.results.versions import side_by_side, split_sides, version_groups
+from freebody.run import engine_envs, executor
+from freebody.run.matrix import expand, select_integrators
+from freebody.run.suite import run_specs
+
+OLD_MUJOCO = "3.1.6"  # the release before implicitfast's and RK4's changes (docs/environments.md)
+
+
+def _installed(dist: str) -> str | None:
+    try:
+        return importlib.metadata.version(dist)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
+# --- names ----------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name, parts", [
+    ("mujoco==3.1.6", ("mujoco", "==3.1.6")), ("mujoco", ("mujoco", "")),
+    (" MuJoCo >= 3.1 , < 3.2 ", ("MuJoCo", ">=3.1,<3.2")), ("dartpy~=6.19.0", ("dartpy", "~=6.19.0")),
+])
+def test_an_engine_name_splits_into_the_engine_and_a_normalised_specifier(name, parts):
+    assert split_engine_name(name) == parts
+
+
+@pytest.mark.parametrize("bad", ["mujoco==", "mujoco=3.1", "mujoco==3.1,", "mujoco 3.1", "==3.1", "mujoco==3 1"])
+def test_a_malformed_versioned_name_is_an_unknown_engine(bad):
+    with pytest.raises(UnknownEngine):
+        resolve_engine(bad)
+
+
+def test_a_versioned_name_resolves_to_the_registered_spelling_and_its_distribution():
+    assert resolve_engine("MuJoCo == 3.1.6") == "mujoco==3.1.6"
+    assert base_engine("dartpy==6.19.0") == "dart"  # the pip distribution names the engine too
+    assert resolve_engine("dartpy==6.19.0") == "dart==6.19.0"
+    assert engine_requirement("dart==6.19.0") == "dartpy==6.19.0"
+    assert engine_requirement("mjx==3.17.0") == "mujoco-mjx==3.17.0"
+    assert engine_requirement("mujoco") is None
+    with pytest.raises(UnknownEngine, match="no versions"):
+        engine_requirement("reference==0.1")
+
+
+def test_the_cli_rejects_a_bad_engine_version_in_one_line(capsys):
+    assert main(["run", "dzhanibekov", "--engine", "mujoco=3.1.6", "--out", "/nonexistent/x"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "mujoco=3.1.6" in err[0] and "Traceback" not in err[0]
+
+
+@pytest.mark.parametrize("version, spec, ok", [
+    ("3.1.6", "==3.1.6", True), ("3.1.6", ">=3.2", False), ("6.20.0", ">=6.19", True),
+    ("6.18.0", ">=6.19", False), ("6.19", "==6.19.0", True), ("3.17.0 (mujoco 4.0.0, jax 0.10.2)", ">=3.17", True),
+    ("6.19.5", "~=6.19.0", True), ("6.20.0", "~=6.19.0", False), ("3.1.6", "==3.1.*", True),
+    ("3.2.0", "!=3.2.*", False), ("4.0.0", ">=3.1,<4", False), ("4.0.0rc1", ">=4", True),
+    ("unknown", ">=1", None),
+])
+def test_version_in(version, spec, ok):
+    assert version_in(version, spec) is ok
+
+
+# --- supported ranges -----------------------------------------------------------------------------
+
+def test_a_version_outside_the_adapters_range_is_a_skipped_run_naming_the_range(monkeypatch, tmp_path):
+    monkeypatch.setattr(ReferenceAdapter, "supported_versions", ">=99")
+    reason = unsupported_version(ReferenceAdapter, ReferenceAdapter.engine_version())
+    assert ">=99" in reason and "not supported" in reason
+    specs = expand([load_case("dzhanibekov")], ["reference"], ["rk4"], [0.01], 0.1)
+    doc, _ = run_specs(specs, tmp_path, ["reference"], progress=False, isolate=False)
+    (run,) = doc["runs"]
+    assert run["status"] == "skipped" and ">=99" in run["message"]
+    monkeypatch.setattr(ReferenceAdapter, "supported_versions", ">=0.1")
+    doc, _ = run_specs(specs, tmp_path / "b", ["reference"], progress=False, isolate=False)
+    assert doc["runs"][0]["status"] == "ok"
+
+
+def test_every_builtin_adapter_supports_its_installed_version():
+    from freebody.adapters.base import is_available, load_adapter
+
+    for name in ("mujoco", "pybullet", "dart"):
+        if is_available(name):
+            cls = load_adapter(name)
+            assert cls.supported_versions, name
+            assert unsupported_version(cls, cls.engine_version()) is None, name
+
+
+# --- where runs execute ---------------------------------------------------------------------------
+
+def test_a_versioned_engine_whose_version_is_installed_here_runs_here():
+    have = _installed("mujoco")
+    if have is None:
+        pytest.skip("mujoco is not installed")
+    assert engine_envs.requirement(f"mujoco=={have}") is None
+    assert engine_envs.requirement("mujoco==0.0.1") == "mujoco==0.0.1"
+    assert engine_envs.isolated("mujoco==0.0.1")
+
+
+def test_an_integrator_for_an_engine_applies_to_each_of_its_versions():
+    offered = ("Euler", "RK4", "implicit")
+    assert select_integrators("mujoco==3.1.6", offered, ["mujoco:RK4"]) == ["RK4"]
+    assert select_integrators("mujoco==3.1.6", offered, ["mujoco==3.1.6:implicit"]) == ["implicit"]
+    # a selection for another version does not apply
+    assert select_integrators("mujoco==3.1.6", offered, ["mujoco==4.0.0:implicit"]) == list(offered)
+
+
+def test_no_isolation_and_dask_refuse_an_isolated_engine_before_building_anything(tmp_path, capsys):
+    for extra in (["--no-isolation"], ["--executor", "dask", "--scheduler", "tcp://127.0.0.1:1"]):
+        code = main(["run", "dzhanibekov", "--engine", "mujoco==0.0.1", "--out", str(tmp_path), *extra])
+        err = capsys.readouterr().err
+        assert code == 2 and "isolated environment" in err and "creating" not in err
+
+
+def _second_interpreter() -> str:
+    """Another path of this very interpreter (python3 beside python): a worker started with it is
+    an 'isolated' worker to the pool, with this environment's packages."""
+    here = Path(sys.executable)
+    for name in ("python3", "python", f"python3.{sys.version_info.minor}"):
+        other = here.with_name(name)
+        if other.exists() and other.name != here.name:
+            return str(other)
+    pytest.skip("no second name of this interpreter")
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_runs_go_to_the_workers_of_their_engines_interpreter(tmp_path, monkeypatch, jobs):
+    other = _second_interpreter()
+    started: list[str | None] = []
+
+    class Recording(executor.Worker):
+        def __init__(self, options, python=None):
+            started.append(python)
+            super().__init__(options, python)
+
+        def send(self, task):  # a run reaches only a worker of its interpreter
+            assert self.python == ({"reference==pinned": other}.get(task.run.spec.engine))
+            super().send(task)
+
+    monkeypatch.setattr(executor, "Worker", Recording)
+    problems = [load_case("dzhanibekov"), load_case("body_torque_spinup")]
+    specs = expand(problems, ["reference"], ["rk4", "euler-quat"], [0.01], 0.2)
+    import dataclasses
+
+    specs += [dataclasses.replace(s, engine="reference==pinned") for s in specs if s.integrator == "rk4"]
+    tasks = executor.plan(specs)
+    done: dict[int, dict] = {}
+    with executor.LocalPool(jobs, interpreters={"reference==pinned": other}) as pool:
+        pool.run(tasks, lambda i, p: done.setdefault(i, p))
+    assert len(done) == len(specs) and set(started) == {None, other}
+    assert len(started) <= jobs + 4  # workers are swapped, not started per run
+    by_key = {(specs[i].problem.name, specs[i].engine, specs[i].integrator): p["result"] for i, p in done.items()}
+    for case in ("dzhanibekov", "body_torque_spinup"):
+        a, b = by_key[(case, "reference", "rk4")], by_key[(case, "reference==pinned", "rk4")]
+        assert a.status == b.status == "ok" and a.metrics == b.metrics
+
+
+# --- one results file, two versions ---------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def two_versions(tmp_path_factory) -> dict:
+    """A results document whose reference runs appear under two engine names, the second with
+    implicitfast-like changes: one run's scheme and one metric moved."""
+    out = tmp_path_factory.mktemp("versions")
+    specs = expand([load_case("dzhanibekov")], ["reference"], ["rk4", "semi-implicit-explicit-gyro"],
+                   [0.01, 0.005], 1.0)
+    doc, _ = run_specs(specs, out, ["reference"], progress=False, jobs=1)
+    new = []
+    for r in doc["runs"]:
+        a, b = copy.deepcopy(r), copy.deepcopy(r)
+        a["engine"], b["engine"] = "fake==1", "fake==2"
+        a["matches_reference"] = {"integrator": r["integrator"], "closest": r["integrator"]}
+        b["matches_reference"] = dict(a["matches_reference"])
+        if r["integrator"] == "rk4" and r["dt"] == 0.01:
+            b["matches_reference"] = {"integrator": "rkmk4", "closest": "rkmk4"}
+            b["metrics"]["orientation_error_max_rad"] *= 10
+        new += [a, b]
+    doc = {**doc, "runs": doc["runs"] + new, "engines": {**doc["engines"], "fake==1": "1", "fake==2": "2"}}
+    (out / "two.json").write_text(json.dumps(doc))
+    return {"doc": doc, "path": out / "two.json"}
+
+
+def test_side_by_side_rows_show_each_versions_scheme_and_what_changed(two_versions):
+    doc = two_versions["doc"]
+    assert version_groups(doc) == {"fake": ["fake==1", "fake==2"]}
+    rows = side_by_side(doc)
+    assert len(rows) == 2 and all([c.engine for c in r.cells] == ["fake==1", "fake==2"] for r in rows)
+    changed = {r.integrator: r for r in rows if r.changes}
+    assert list(changed) == ["rk4"] and changed["rk4"].changes == ["scheme", "order"]
+    old, new = changed["rk4"].cells
+    assert old.scheme == "rk4" and new.scheme == "rk4 / rkmk4" and changed["rk4"].final_angle_rad == 0.0
+    # two time steps: the slope of the error; the moved error at dt = 0.01 moves it by one decade
+    assert changed["rk4"].order_kind == "slope" and new.order == pytest.approx(old.order + math.log(10) / math.log(2))
+
+
+def test_compare_against_gives_the_verdicts_between_two_engines_of_one_file(two_versions, capsys):
+    path = str(two_versions["path"])
+    assert main(["compare", path, "--engine", "fake==1", "--against", "fake==2"]) == 1
+    out = capsys.readouterr().out
+    assert "scheme changed" in out.lower() and "rk4 → rkmk4" in out.replace("->", "→") or "rkmk4" in out
+    assert main(["compare", path, "--engine", "fake==1", "--against", "fake==1"]) == 2
+    assert main(["compare", path, "--engine", "fake==1", "--against", "fake==3"]) == 2
+    assert main(["compare", path, "--against", "fake==2"]) == 2
+    assert main(["compare", path, path, "--engine", "fake==1", "--against", "fake==2"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert len(errors) == 4 and all(line.startswith("freebody: error:") for line in errors)
+
+
+def test_split_sides_renames_both_sides_to_one_engine(two_versions):
+    base, cur = split_sides(two_versions["doc"], "fake==1", "fake==2")
+    assert {r["engine"] for r in base["runs"]} == {r["engine"] for r in cur["runs"]} == {"fake"}
+    assert base["engines"] == {"fake": "1"} and cur["engines"] == {"fake": "2"}
+    with pytest.raises(InputError):
+        split_sides(two_versions["doc"], "fake==1", "nope")
