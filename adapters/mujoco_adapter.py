@@ -22,7 +22,10 @@ MuJoCo's conventions and what this adapter converts:
 - Instability: MuJoCo counts "Nan, Inf or huge value" warnings in ``data.warning`` and by default
   resets the body to ``qpos0`` at rest and carries on.  The adapter disables that auto-reset (so the
   last sample shows the blown-up state) and reports any increase of the watched warning counters,
-  at the step that raised it.
+  at the step that raised it.  MuJoCo before 3.2 has no switch for the auto-reset: it resets (its
+  counters too), then counts the warning, so the blow-up is still detected at its step (the
+  counter moves from 0, and the replay of a chunk sees the time go back to 0); the last sample is
+  then the reset state, the body at rest at ``qpos0``.
 - advance() is shaped for speed (see its docstring): stretches of steps whose loads do not depend
   on the state run in C through ``mujoco.rollout`` (which stops at the first warning); the Python
   loop used under state-dependent loads reads the counters once per chunk of steps and replays a
@@ -330,15 +333,20 @@ class MujocoAdapter(Adapter):
         for i in range(c0, c1):
             if seg.state_dependent and i > i0:
                 self._write_wrench(seg)
+            t_before = data.time
             step(model, data)
             if not (np.array_equal(Q[i + 1], qpos, equal_nan=True)
                     and np.array_equal(V[i + 1], qvel, equal_nan=True)):
                 raise RuntimeError("mujoco: replaying a chunk from its saved state gave another "
                                    f"state at step {i + 1} (the replay does not restore enough)")
             now = [w.number for w in warnings]
-            if now != after_chunk:
+            # MuJoCo without the auto-reset switch (before 3.2) resets the data at the bad step,
+            # counters included, then counts the warning: the counter reads 1 after the chunk and
+            # again after this step, and the time went back to 0.  The reset is the warning's step.
+            reset = data.time < t_before
+            if now != after_chunk or reset:
                 for w, before, moved, cur in zip(warnings, self._warning_counts, after_chunk, now):
-                    w.number = before + (cur - moved)
+                    w.number = before + (cur if reset else cur - moved)
                 return i + 1, self._warning_message()
         raise RuntimeError("mujoco: a warning counter moved during a chunk but not when it was "
                            "replayed step by step")

@@ -692,16 +692,20 @@ def clear_environments(requirements: list[str] | None = None) -> list[Path]:
 
 # --- describing an engine in an environment ------------------------------------------------------------
 
-def describe_engine(env: EngineEnvironment, engine: str, timeout: float = 300) -> dict:
+def describe_engine(env: EngineEnvironment, engine: str, timeout: float = 300, entry=None) -> dict:
     """What the environment's freebody says of ``engine`` (a name, versioned or not): {"engine",
     "available", "version", "integrators", "precisions", "error", "unsupported"} (``unsupported``:
     why freebody's adapter cannot drive that version, or None), from ``python -m
     freebody.environments describe ENGINE`` run with the environment's interpreter.  A crash or a
-    timeout is ``available: False`` with the reason in ``error``."""
+    timeout is ``available: False`` with the reason in ``error``.  ``entry``: the engine's
+    :class:`~freebody.adapters.base.EngineEntry` in this process's registry, registered there first
+    (an engine registered at run time, which the environment's freebody does not know)."""
+    extra = [json.dumps(entry._asdict())] if entry is not None else []
     failed = {"engine": engine, "available": False, "version": None, "integrators": None,
               "precisions": None, "unsupported": None}
     try:
-        proc = subprocess.run([str(env.python), "-P", "-m", "freebody.environments", "describe", engine],
+        proc = subprocess.run([str(env.python), "-P", "-m", "freebody.environments", "describe", engine,
+                               *extra],
                               capture_output=True, stdin=subprocess.DEVNULL, cwd=env.path,
                               env=clean_environ(), timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -721,11 +725,16 @@ def describe_engine(env: EngineEnvironment, engine: str, timeout: float = 300) -
     return {**failed, "error": f"describing {engine} failed: {why}"}
 
 
-def _describe(engine: str) -> dict:
-    """The description of ``engine`` in this process (see :func:`describe_engine`)."""
+def _describe(engine: str, entry: dict | None = None) -> dict:
+    """The description of ``engine`` in this process (see :func:`describe_engine`); ``entry``: the
+    fields of its registry entry, registered under its base name first."""
     from .adapters import base
     from .adapters.base import EngineMissing, UnknownEngine, is_available, load_adapter
     from .adapters.capture import capture_output
+
+    if entry is not None:
+        name = base.split_engine_name(engine)[0]
+        base.ENGINES[name] = base.EngineEntry(**entry)
 
     out = {"engine": engine, "available": False, "version": None, "integrators": None,
            "precisions": None, "error": None, "unsupported": None}
@@ -750,10 +759,11 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m freebody.environments describe ENGINE``: one JSON line prefixed with
     :data:`DESCRIBE_PREFIX` on stdout."""
     argv = sys.argv[1:] if argv is None else argv
-    if len(argv) != 2 or argv[0] != "describe":
-        sys.stderr.write("usage: python -m freebody.environments describe ENGINE\n")
+    if len(argv) not in (2, 3) or argv[0] != "describe":
+        sys.stderr.write("usage: python -m freebody.environments describe ENGINE [ENTRY-JSON]\n")
         return 2
-    sys.stdout.write(DESCRIBE_PREFIX + json.dumps(_describe(argv[1])) + "\n")
+    entry = json.loads(argv[2]) if len(argv) == 3 else None
+    sys.stdout.write(DESCRIBE_PREFIX + json.dumps(_describe(argv[1], entry)) + "\n")
     sys.stdout.flush()
     return 0
 

@@ -231,3 +231,120 @@ def test_split_sides_renames_both_sides_to_one_engine(two_versions):
     assert base["engines"] == {"fake": "1"} and cur["engines"] == {"fake": "2"}
     with pytest.raises(InputError):
         split_sides(two_versions["doc"], "fake==1", "nope")
+
+
+# --- a real old MuJoCo in a real environment (slow: builds it with pip on first use) ---------------
+
+BLOW_UP_CASE = """\
+name = "blow_up"
+description = "Fast spin near the intermediate axis: explicit Euler blows up within 30 s at dt = 0.01."
+duration = 30.0
+dt = 0.01
+[body]
+mass = 1.0
+inertia = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]
+[initial]
+position = [0.0, 0.0, 0.0]
+orientation = [1.0, 0.0, 0.0, 0.0]
+linear_velocity = [0.0, 0.0, 0.0]
+angular_velocity = [0.1, 50.0, 0.0]
+[world]
+gravity = [0.0, 0.0, 0.0]
+"""
+# Time steps at which MuJoCo's RK4 is in its asymptotic range on dzhanibekov over 10 s on both
+# versions (errors 5e-5 .. 2e-7 rad on 4.0, above the truth's 1e-9 floor): three, so orders are fitted.
+ORDER_DTS = ("0.04", "0.02", "0.01")
+ORDER_TOLERANCE = 0.3  # |fitted - nominal| of RK4's orientation order at ORDER_DTS (measured: 2.00, 3.9)
+
+
+@pytest.fixture(scope="module")
+def env_root(tmp_path_factory):
+    """A FREEBODY_ENV_DIR of this module: the environment is built once for its tests."""
+    root = tmp_path_factory.mktemp("envs")
+    old = os.environ.get("FREEBODY_ENV_DIR")
+    os.environ["FREEBODY_ENV_DIR"] = str(root)
+    for f in (engine_envs.environment, engine_envs.describe):
+        f.cache_clear()
+    yield root
+    if old is None:
+        os.environ.pop("FREEBODY_ENV_DIR", None)
+    else:
+        os.environ["FREEBODY_ENV_DIR"] = old
+    for f in (engine_envs.environment, engine_envs.describe):
+        f.cache_clear()
+
+
+@pytest.mark.slow
+def test_two_mujoco_versions_side_by_side_in_one_run(env_root, tmp_path, capsys):
+    have = _installed("mujoco")
+    if have is None or have == OLD_MUJOCO:
+        pytest.skip(f"needs a MuJoCo other than {OLD_MUJOCO} installed here (have {have})")
+    new = f"mujoco=={have}"
+    old = f"mujoco=={OLD_MUJOCO}"
+    code = main(["run", "dzhanibekov", "--engine", old, "--engine", new, "--integrator", "mujoco:implicitfast",
+                 "--integrator", "mujoco:RK4", *(a for d in ORDER_DTS for a in ("--dt", d)),
+                 "--out", str(tmp_path / "out"), "--quiet"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert f"creating environment for {old}" in captured.err  # built on first use, progress shown
+    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert doc["engines"] == {old: OLD_MUJOCO, new: have}
+    runs = {(r["engine"], r["integrator"], r["dt"]): r for r in doc["runs"]}
+    assert all(r["status"] == "ok" for r in runs.values()) and len(runs) == 12
+    # implicitfast: MuJoCo 3.1 drops the gyroscopic term's derivative (= Euler's map); 4.0 keeps it
+    assert "semi-implicit-explicit-gyro" in runs[(old, "implicitfast", 0.01)]["matches_reference"]["indistinguishable"]
+    assert "semi-implicit-implicit-gyro" in runs[(new, "implicitfast", 0.01)]["matches_reference"]["indistinguishable"]
+    orders = {e["engine"]: e["order"] for e in doc["convergence"]
+              if e["integrator"] == "RK4" and e["metric"] == "orientation_error_max_rad"}
+    assert abs(orders[old] - 2) < ORDER_TOLERANCE and abs(orders[new] - 4) < ORDER_TOLERANCE, orders
+
+    report = (tmp_path / "out" / "report.md").read_text()
+    section = report.split("## Engine versions side by side", 1)[1].split("\n## ", 1)[0]
+    assert "| dzhanibekov | mujoco/RK4" in section.replace("  ", "").replace(" |", "|").replace("| ", "|").replace("|", "| ").replace("  ", " ") or "mujoco/RK4" in section
+    rk4 = [line for line in section.splitlines() if "mujoco/RK4" in line]
+    assert rk4 and "scheme, order" in rk4[0]
+    fast = [line for line in section.splitlines() if "mujoco/implicitfast" in line]
+    assert fast and "scheme" in fast[0]
+
+    code = main(["compare", str(tmp_path / "out"), "--engine", old, "--against", new])
+    out = capsys.readouterr().out
+    assert code == 1 and "SCHEME CHANGED" in out and "ORDER CHANGED" in out.upper()
+
+    # cached use: no build, the same numbers
+    code = main(["run", "dzhanibekov", "--engine", old, "--integrator", "mujoco:implicitfast", "--dt", "0.01",
+                 "--out", str(tmp_path / "again"), "--quiet", "--no-report"])
+    captured = capsys.readouterr()
+    assert code == 0 and "creating environment" not in captured.err
+    again = json.loads((tmp_path / "again" / "results.json").read_text())["runs"][0]
+    assert again["metrics"] == runs[(old, "implicitfast", 0.01)]["metrics"]
+
+
+@pytest.mark.slow
+def test_an_old_mujoco_blow_up_is_diverged_not_silently_reset(env_root, tmp_path, capsys):
+    """MuJoCo 3.1 has no switch for its auto-reset: a blow-up resets the body to rest.  It still
+    counts the warning first, which the adapter watches: the run is diverged at the step."""
+    case = tmp_path / "blow_up.toml"
+    case.write_text(BLOW_UP_CASE)
+    code = main(["run", str(case), "--engine", f"mujoco=={OLD_MUJOCO}", "--integrator", "mujoco:Euler",
+                 "--out", str(tmp_path / "out"), "--quiet", "--no-report"])
+    capsys.readouterr()
+    assert code == 0
+    (run,) = json.loads((tmp_path / "out" / "results.json").read_text())["runs"]
+    assert run["status"] == "diverged" and "BADQACC" in run["message"].upper(), run["message"]
+    assert "autoreset" not in run["engine_settings"]  # 3.1.6 lacks the switch: nothing was set
+
+
+@pytest.mark.slow
+def test_an_engine_registered_with_an_environment_always_runs_there(env_root, tmp_path, monkeypatch, capsys):
+    """An engine whose package pins conflict with another's declares an environment in its
+    registry entry: its runs go there without a version on the command line."""
+    from freebody.adapters.base import ENGINES
+
+    monkeypatch.setitem(ENGINES, "mujoco-old", ENGINES["mujoco"]._replace(environment=f"mujoco=={OLD_MUJOCO}"))
+    code = main(["run", "dzhanibekov", "--engine", "mujoco-old", "--integrator", "mujoco-old:Euler", "--dt", "0.01",
+                 "--duration", "1", "--out", str(tmp_path / "out"), "--quiet", "--no-report"])
+    captured = capsys.readouterr()
+    doc = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert code == 0, (captured.err, doc["runs"][0]["message"])
+    assert doc["engines"] == {"mujoco-old": OLD_MUJOCO}
+    assert [r["engine_version"] for r in doc["runs"]] == [OLD_MUJOCO]

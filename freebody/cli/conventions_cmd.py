@@ -13,10 +13,14 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from ..adapters.base import EngineMissing, load_adapter
     from ..run import select_engines
+    from ..run.engine_envs import isolated
     from ..run.selfcheck import CHECKS, run_check
 
     failed = False
     for engine in select_engines(args.engine):
+        if isolated(engine):  # another version of the engine: its own environment answers
+            failed |= _in_environment(engine, args.no_checks) != 0
+            continue
         try:
             cls = load_adapter(engine)
             version = cls.engine_version()
@@ -45,3 +49,24 @@ def run(args) -> int:
                 print(f"    {'PASS' if r.passed else 'FAIL'}  {integ:<28} {check:<17} {r.detail}")
         print()
     return 1 if failed else 0
+
+
+def _in_environment(engine: str, no_checks: bool) -> int:
+    """``freebody conventions`` of an engine named with a version, run by the interpreter of its
+    isolated environment (built on first use); its exit code."""
+    import subprocess
+    import sys
+
+    from ..adapters.base import base_engine
+    from ..environments import clean_environ
+    from ..run.engine_envs import environment
+
+    env = environment(engine)
+    sys.stdout.flush()
+    cmd = [str(env.python), "-P", "-m", "freebody", "conventions", "--engine", base_engine(engine)]
+    proc = subprocess.run(cmd + (["--no-checks"] if no_checks else []), env=clean_environ(),
+                          stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, text=True)
+    out = proc.stdout
+    head = f"== {base_engine(engine)} "
+    print(out.replace(head, f"== {engine} (isolated environment {env.path}): ", 1), end="", flush=True)
+    return proc.returncode

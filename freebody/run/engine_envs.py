@@ -76,7 +76,7 @@ def describe(engine: str) -> dict:
     ``integrators``, ``precisions``, ``error`` (see :func:`freebody.environments.describe_engine`)."""
     from ..environments import describe_engine
 
-    return describe_engine(environment(engine), engine)
+    return describe_engine(environment(engine), engine, entry=registry()[base_engine(engine)])
 
 
 def interpreters(engines) -> dict[str, str]:

@@ -265,7 +265,7 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
     from ..run import interrupts
     from ..run.suite import check_options, run_specs
 
-    check_options(jobs, None, None, "local", None, isolate)  # before any batch is stepped
+    check_options(jobs, None, None, "local", None, isolate, engines)  # before any batch is stepped
     extra = {"precisions": precisions} if precisions else {}
     specs = expand([b.problem for b in bodies], engines, integrators, None, None, **extra)
     batched = _batched_outputs(specs, progress)
@@ -297,11 +297,15 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
 def _batch_classes(engines, progress: bool) -> dict[str, type]:
     """engine -> its adapter class, for the installed engines whose adapter steps bodies as a
     batch (``supports_batch()``).  An engine that is missing is left out, and so is one whose
-    adapter fails to load: its runs go one by one and record their own skip or failure."""
+    adapter fails to load: its runs go one by one and record their own skip or failure.  So does an
+    engine that runs in an isolated environment (a version named on the command line): batches
+    are stepped in this process, which holds another version of it."""
+    from ..run.engine_envs import isolated
+
     out = {}
     for engine in dict.fromkeys(engines):
         try:
-            if not is_available(engine):
+            if isolated(engine) or not is_available(engine):
                 continue
             with capture_output():  # some engines print a banner on import (pybullet)
                 cls = load_adapter(engine)
