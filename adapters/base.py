@@ -79,6 +79,8 @@ class Adapter(ABC):
       precisions : floating-point precisions offered ("float64" unless the engine says otherwise).
       conventions : engine convention facts shown by ``freebody conventions``.
       compare_with : the engine this one ports, compared run by run (or None).
+      opt_in_integrators : offered integrators that run only when named with ``--integrator`` (or
+        with ``--all-integrators``): slow ones, e.g. error-controlled implicit schemes.
       supported_versions : the engine versions this adapter can drive, a version specifier
         (``">=6.19"``), or None for any; a run on another version is ``skipped``, naming the range
         (see :func:`unsupported_version`).
@@ -102,6 +104,7 @@ class Adapter(ABC):
     # engine's run of the same integrator and dt (results.json "vs_engine").
     compare_with: ClassVar[str | None] = None
     supported_versions: ClassVar[str | None] = None
+    opt_in_integrators: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, problem: Problem, dt: float, integrator: str, precision: str = "float64"):
         offered = self.offered_integrators()
@@ -149,6 +152,15 @@ class Adapter(ABC):
     def offered_integrators(cls) -> tuple[str, ...]:
         """Integrators available in the installed version (default first)."""
         return cls.integrators
+
+    @classmethod
+    def trap_checks(cls) -> dict[str, Callable[[], tuple[bool, float | None, float, str]]]:
+        """Live checks of the engine's own traps that the adapter handles (a hidden damping, a
+        velocity clamp, sleeping, a quaternion never renormalised...): name -> a function that
+        builds what it needs, runs the engine and returns (passed, measured value, bound, one
+        sentence).  Each must fail if the adapter stops handling its trap.  Run by ``freebody
+        conventions`` and the test suite (:func:`freebody.run.selfcheck.run_trap_checks`); default: none."""
+        return {}
 
     @classmethod
     def selfcheck_integrators(cls) -> tuple[str, ...]:
@@ -297,6 +309,8 @@ class EngineEntry(NamedTuple):
     environment : a pip requirement: the engine always runs in an isolated environment of its own
         holding it (an engine whose package pins conflict with another engine's, e.g. one that
         pins an older MuJoCo), see :mod:`freebody.run.engine_envs`; None: this environment.
+    default : in the engines ``freebody run`` runs when none is named (fast ones); False: only
+        when named with ``--engine`` or with ``--all-engines`` (seconds per run, long first compiles).
     """
 
     import_name: str
@@ -306,6 +320,7 @@ class EngineEntry(NamedTuple):
     cache_env: str | None = None
     package: str | None = None
     environment: str | None = None
+    default: bool = True
 
     @property
     def distribution(self) -> str:
@@ -358,6 +373,11 @@ def registry() -> dict[str, EngineEntry]:
 
 def engine_names() -> list[str]:
     return list(registry())
+
+
+def default_engine_names() -> list[str]:
+    """The engines ``freebody run`` runs when none is named (registry entries with ``default``)."""
+    return [name for name, entry in registry().items() if getattr(entry, "default", True)]
 
 
 # A versioned engine name: the engine (or its pip distribution) then a PEP 440 version specifier,

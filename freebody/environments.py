@@ -745,7 +745,8 @@ def _describe(engine: str, entry: dict | None = None) -> dict:
             cls = load_adapter(engine)
             version = str(cls.engine_version())
             out.update(version=version, integrators=list(cls.offered_integrators()),
-                       precisions=list(cls.precisions), available=True)
+                       precisions=list(cls.precisions), available=True,
+                       opt_in=list(getattr(cls, "opt_in_integrators", ()) or ()))
             unsupported = getattr(base, "unsupported_version", None)  # the adapter's version range
             out["unsupported"] = unsupported(cls, version) if unsupported is not None else None
     except UnknownEngine as e:

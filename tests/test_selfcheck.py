@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from freebody.adapters.base import load_adapter
-from freebody.run.selfcheck import CHECKS, run_check
+from freebody.run.selfcheck import CHECKS, run_check, run_trap_checks
 
 
 @pytest.mark.parametrize("check", CHECKS)
@@ -24,3 +24,10 @@ def test_checks_can_fail_on_an_integrator_that_breaks_them():
     """euler-matrix drifts L and R: the L and high-spin checks must say so."""
     assert not run_check("torque_free_L", "reference", "euler-matrix").passed
     assert not run_check("high_spin", "reference", "euler-quat").passed
+
+
+def test_every_trap_check_of_the_engine_passes(engine):
+    """The adapter's own trap checks (Adapter.trap_checks): each trap it handles, live."""
+    results = run_trap_checks(engine)
+    bad = [f"{r.check}: {r.detail}" for r in results if not r.passed]
+    assert not bad, "; ".join(bad)

@@ -14,7 +14,7 @@ def run(args) -> int:
     from ..adapters.base import EngineMissing, load_adapter
     from ..run import select_engines
     from ..run.engine_envs import isolated
-    from ..run.selfcheck import CHECKS, run_check
+    from ..run.selfcheck import CHECKS, run_check, run_trap_checks
 
     failed = False
     for engine in select_engines(args.engine):
@@ -47,6 +47,12 @@ def run(args) -> int:
                 r = run_check(check, engine, integ)
                 failed |= not r.passed
                 print(f"    {'PASS' if r.passed else 'FAIL'}  {integ:<28} {check:<17} {r.detail}")
+        traps = run_trap_checks(engine)
+        if traps:
+            print("  traps the adapter handles (live checks):")
+        for r in traps:
+            failed |= not r.passed
+            print(f"    {'PASS' if r.passed else 'FAIL'}  {r.check:<46} {r.detail}")
         print()
     return 1 if failed else 0
 

@@ -20,9 +20,16 @@ def add_parser(sub) -> None:
                                    "engine and integrator at every time step.")
     p.add_argument("cases", nargs="*", metavar="CASE|PATH", help="bundled case names or TOML files")
     p.add_argument("--engine", action="append", metavar="NAME[==VERSION]",
-                   help="engine to run (repeatable); default: every available engine.  ENGINE==VERSION "
+                   help="engine to run (repeatable); default: the default set of engines (every "
+                        "registered one with --all-engines).  ENGINE==VERSION "
                         "(any pip version specifier) runs that version in an isolated environment "
                         "that freebody builds on first use and caches (freebody envs list)")
+    p.add_argument("--all-engines", action="store_true",
+                   help="with no --engine: every registered engine, the opt-in ones too (freebody "
+                        "conventions lists which are opt-in); default: the default set")
+    p.add_argument("--all-integrators", action="store_true",
+                   help="also run the engines' opt-in integrators (slow ones, e.g. error-controlled "
+                        "implicit schemes), which otherwise run only when named with --integrator")
     p.add_argument("--integrator", action="append", metavar="[ENGINE:]NAME",
                    help="integrator (repeatable, case-insensitive); NAME applies to every engine "
                         "offering it, ENGINE:NAME to one engine; default: all")
@@ -64,7 +71,7 @@ def run(args) -> int:
     names = args.cases or list(bundled_case_paths())
     problems = [load_case(n) for n in names]
     check_run_lengths(problems, args.dt, args.duration)  # at most MAX_STEPS_PER_RUN steps a run
-    engines = select_engines(args.engine)
+    engines = select_engines(args.engine, all_engines=args.all_engines)
     from ..run.budget import check_run
     from ..run.suite import check_options, default_jobs
 
@@ -73,7 +80,7 @@ def run(args) -> int:
                   isolate=not args.no_isolation, engines=engines)  # before an environment is built
     # an engine named with a version gets its isolated environment here (built on first use)
     specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision,
-                   sources=[str(n) for n in names])
+                   sources=[str(n) for n in names], all_integrators=args.all_integrators)
     out_dir = out_folder(args.out)  # '' is bad input, not the current folder (before it is touched)
     check_run(specs, jobs, force=args.force_large)
     with output_lock(out_dir):  # one freebody process writes DIR at a time, reports included

@@ -8,8 +8,8 @@ import warnings
 import numpy as np
 
 from .. import tolerances as tol
-from ..adapters.base import (UnknownEngine, base_engine, engine_names, is_available, load_adapter,
-                             resolve_engine, split_engine_name)
+from ..adapters.base import (UnknownEngine, base_engine, default_engine_names, engine_names, is_available,
+                             load_adapter, resolve_engine, split_engine_name)
 from ..adapters.capture import capture_output
 from ..errors import InputError
 from ..reference_impl.problem import Problem
@@ -17,12 +17,12 @@ from . import engine_envs
 from .records import PRECISIONS, RunSpec
 
 
-def select_engines(requested: list[str] | None) -> list[str]:
+def select_engines(requested: list[str] | None, all_engines: bool = False) -> list[str]:
     """Requested engines (validated, case-insensitive; an engine may be named with a version,
-    ``mujoco==3.1.6``, run in an isolated environment: :mod:`.engine_envs`), or every registered
-    engine."""
+    ``mujoco==3.1.6``, run in an isolated environment: :mod:`.engine_envs`), or the default set
+    (registry entries with ``default``; every registered engine with ``all_engines``)."""
     if not requested:
-        return engine_names()
+        return engine_names() if all_engines else default_engine_names()
     try:
         out = []
         for name in requested:
@@ -48,6 +48,20 @@ def engine_integrators(engine: str) -> tuple[str, ...] | None:
             return load_adapter(engine).offered_integrators()
     except Exception:
         return None
+
+
+def engine_opt_in(engine: str) -> tuple[str, ...]:
+    """The engine's opt-in integrators (``Adapter.opt_in_integrators``: run only when named), ()
+    when it has none or is not installed here."""
+    if engine_envs.isolated(engine):
+        return tuple(engine_envs.describe(engine).get("opt_in") or ())
+    if not is_available(engine):
+        return ()
+    try:
+        with capture_output():
+            return tuple(getattr(load_adapter(engine), "opt_in_integrators", ()) or ())
+    except Exception:
+        return ()
 
 
 def engine_precisions(engine: str) -> tuple[str, ...] | None:
@@ -120,13 +134,15 @@ def _current_name(engine: str, offered: tuple[str, ...], name: str) -> str:
     return name
 
 
-def select_integrators(engine: str, offered: tuple[str, ...], requested: list[str] | None) -> list[str]:
+def select_integrators(engine: str, offered: tuple[str, ...], requested: list[str] | None,
+                       opt_in: tuple[str, ...] = ()) -> list[str]:
     """Apply ``--integrator`` selections: NAME applies to every engine, ENGINE:NAME to one engine
     (every version of it, unless ENGINE names a version: ``mujoco:RK4`` applies to ``mujoco==3.1.6``).
 
     An engine to which no selection applies runs all its integrators; one to which selections
     apply but which offers none of them is bad input (the message lists what it offers).  An old
     name of an integrator (:func:`integrator_aliases`) selects the integrator by its current name.
+    ``opt_in`` integrators run only when named (a NAME or ENGINE:NAME selection).
     """
     names = []
     for item in requested or []:
@@ -146,7 +162,7 @@ def select_integrators(engine: str, offered: tuple[str, ...], requested: list[st
                                  f"it offers: {', '.join(offered)}")
             names.append(name)
     if not names:
-        return list(offered)
+        return [o for o in offered if o not in opt_in]
     chosen = [o for o in offered if any(o.lower() == n.lower() for n in names)]
     if not chosen:
         raise InputError(f"--integrator: {engine} offers none of {', '.join(repr(n) for n in names)}; "
@@ -156,13 +172,15 @@ def select_integrators(engine: str, offered: tuple[str, ...], requested: list[st
 
 def expand(problems: list[Problem], engines: list[str], integrators: list[str] | None,
            dts: list[float] | None, duration: float | None,
-           precisions: list[str] | None = None, *, sources: list[str] | None = None) -> list[RunSpec]:
+           precisions: list[str] | None = None, *, sources: list[str] | None = None,
+           all_integrators: bool = False) -> list[RunSpec]:
     """Every run of the matrix, in a stable order (case, dt, engine, integrator, precision), each
     run once: a run is identified by (case name, engine, integrator, precision, dt).
 
     precisions : None for every precision each engine offers (``Adapter.precisions``), else the
     ones to run (see :func:`select_precisions`).
     sources : where each problem came from (case names or paths), for messages.
+    all_integrators : run the engines' opt-in integrators too (``--all-integrators``).
 
     Duplicates: a case given twice with the same content, or a time step listed twice (``--dt``
     or the case's ``dt``), runs once, with a warning; two different cases with the same name are
@@ -179,7 +197,8 @@ def expand(problems: list[Problem], engines: list[str], integrators: list[str] |
         if offered is None:
             per_engine[engine] = ["*"]
         else:
-            per_engine[engine] = select_integrators(engine, offered, integrators)
+            per_engine[engine] = select_integrators(engine, offered, integrators,
+                                                    () if all_integrators else engine_opt_in(engine))
     per_precision = select_precisions({e: engine_precisions(e) for e in engines}, precisions)
     specs = []
     for pb in unique_problems(problems, sources):

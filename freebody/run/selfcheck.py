@@ -169,3 +169,18 @@ def run_all(engine: str, integrators: list[str] | None = None) -> list[CheckResu
     """Every check on every (or the given) integrator of an engine."""
     cls = load_adapter(engine)
     return [run_check(c, engine, i) for i in (integrators or cls.offered_integrators()) for c in CHECKS]
+
+
+def run_trap_checks(engine: str) -> list[CheckResult]:
+    """The adapter's own trap checks (``Adapter.trap_checks``), each a CheckResult (integrator
+    "-"); an engine error is a failed check with the error as its detail."""
+    cls = load_adapter(engine)
+    out = []
+    for name, check in cls.trap_checks().items():
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):
+                passed, value, bound, detail = check()
+            out.append(CheckResult(name, engine, "-", bool(passed), value, bound, detail))
+        except Exception as e:
+            out.append(CheckResult(name, engine, "-", False, None, float("nan"), f"raised {type(e).__name__}: {e}"))
+    return out
