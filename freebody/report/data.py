@@ -335,6 +335,34 @@ def engine_versions(doc: dict) -> list[tuple[str, str, int]]:
             for e, v in versions.items()]
 
 
+CONVENTIONS_NOTE = ("Each engine's conventions and the traps its adapter handles, as this freebody's "
+                    "adapters state them (`freebody conventions --engine NAME` shows them with their "
+                    "live self-checks); an engine that is not installed here, or that ran in an "
+                    "isolated environment, is listed without them.")
+
+
+def engine_conventions(doc: dict) -> list[tuple[str, str, str]]:
+    """(engine, convention, text) for every engine of the document whose adapter loads here (the
+    adapter's ``conventions``), else one row saying why not."""
+    from ..adapters.base import base_engine, is_available, load_adapter, split_engine_name
+    from ..adapters.capture import capture_output
+
+    out = []
+    for engine, _, _ in engine_versions(doc):
+        try:
+            if split_engine_name(engine)[1] or not is_available(engine):
+                raise LookupError
+            with capture_output():
+                cls = load_adapter(base_engine(engine))
+            rows = list((getattr(cls, "conventions", None) or {}).items())
+        except Exception:
+            out.append((engine, "-", "not installed here (or run in an isolated environment): see "
+                                     f"freebody conventions --engine {engine}"))
+            continue
+        out += [(engine, k, str(v)) for k, v in rows]
+    return out
+
+
 # --- observed order of convergence per engine run (the front page) ---------------------------------
 
 ORDER_FIT_COLUMN = "worst fit rms (decades)"

@@ -25,7 +25,7 @@ td.skipped { background: #e5e5e5; color: #555; }
 .warn { background: #fff3cd; border: 1px solid #e0c36b; padding: 0.5em 1em; }
 img { max-width: 100%; height: auto; display: block; margin: 0.5em 0; border: 1px solid #eee; }
 nav a { margin-right: 0.8em; display: inline-block; } details summary { cursor: pointer; color: #0550ae; }
-.scroll { overflow-x: auto; }
+.scroll { overflow-x: auto; } table.wrap td { white-space: normal; max-width: 60em; }
 """
 NUMERIC = {"dt (s)", "orientation max (rad)", "orientation final (rad)", "L max (rel)", "E max (rel)",
            "position max (m)", "wall s / sim s", "runs", "max difference (rad)", "order p",
@@ -41,7 +41,7 @@ def img(png: bytes | None, alt: str) -> str:
     return f'<img alt="{escape(alt)}" src="data:image/png;base64,{data}">'
 
 
-def table(header, rows, status_col: int | None = None, fold: str | None = None) -> str:
+def table(header, rows, status_col: int | None = None, fold: str | None = None, wrap: bool = False) -> str:
     head = "".join(f"<th>{escape(str(h))}</th>" for h in header)
     body = []
     for row in rows:
@@ -55,7 +55,7 @@ def table(header, rows, status_col: int | None = None, fold: str | None = None) 
             attr = f' class="{" ".join(cls)}"' if cls else ""
             cells.append(f"<td{attr}>{escape(str(c))}</td>")
         body.append("<tr>" + "".join(cells) + "</tr>")
-    html = f'<div class="scroll"><table><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
+    html = f'<div class="scroll"><table{" class=wrap" if wrap else ""}><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
     if fold and len(rows) > FOLD_ROWS:
         html = f"<details><summary>{escape(fold)} ({len(rows)} rows)</summary>{html}</details>"
     return html
@@ -140,6 +140,12 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
     if ports:
         p.append("<h2>Ported engines against their originals (e.g. MJX vs C MuJoCo)</h2>"
                  + table(rd.PORT_COLUMNS, ports))
+    conventions = rd.engine_conventions(doc)
+    if conventions:
+        p.append("<h2>Engine conventions and traps</h2>"
+                 f'<p class="note">{escape(rd.CONVENTIONS_NOTE)}</p>'
+                 + table(("engine", "convention", "what the adapter does"), conventions,
+                         fold="the conventions of each engine", wrap=True))
     return p
 
 

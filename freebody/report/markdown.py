@@ -140,6 +140,10 @@ def front_matter(doc: dict, source: str) -> list[str]:
     if ports:
         out += ["## Ported engines against their originals (e.g. MJX vs C MuJoCo)", "",
                 md_table(rd.PORT_COLUMNS, ports), ""]
+    conventions = rd.engine_conventions(doc)
+    if conventions:
+        out += ["## Engine conventions and traps", "", rd.CONVENTIONS_NOTE, "",
+                md_table(("engine", "convention", "what the adapter does"), conventions), ""]
     return out
 
 
