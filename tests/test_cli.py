@@ -22,7 +22,7 @@ BAD_CASES = [
     ("typo_key", ("mass = 1.0", "mas = 1.0"), ["body.mas", "unknown key", "did you mean 'mass'"]),
     ("typo_top_key", ("duration = 0.05", "duraton = 0.05"), ["duraton", "unknown key"]),
     ("missing_mass", ("mass = 1.0", ""), ["body.mass", "missing"]),
-    ("missing_initial_key", ("angular_velocity = [0.01, 5.0, 0.0]", ""), ["initial.angular_velocity", "missing"]),
+    ("missing_name", ('name = "good"', ""), ["name", "missing"]),
     ("missing_dt", ("dt = [0.01]", ""), ["dt", "missing"]),
     ("non_symmetric", ("inertia = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]",
                        "inertia = [[1.0, 0.5, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]"), ["body.inertia", "symmetric"]),

@@ -109,8 +109,9 @@ def test_valid_generated_cases_run_to_a_status(case, integrator):
         pb = parse_case(case, "fuzz.toml")
     except InputError:
         return
-    dt = pb.dts[0]
-    steps = min(pb.steps(dt), 20)
+    dt = pb.dts[0] if pb.dts else 0.01  # a case may leave dt and its duration to --dt and --duration
+    no_duration = pb.duration is None and pb.duration_steps is None
+    steps = min(pb.steps(dt, 5 * dt if no_duration else None), 20)
     out = execute(RunSpec(pb, "reference", integrator, dt, steps))
     assert out.result.status in STATUSES
     for v in out.result.metrics.values():

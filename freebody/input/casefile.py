@@ -1,28 +1,33 @@
 """Case files: TOML under ``cases/`` (or a user's own path) parsed and validated into a Problem.
 
 Every error is an :class:`InputError` whose one-line message names the file, the key and the
-reason.  The format (units are normative)::
+reason.  The format (units are normative; docs/case-files.md has every key in a table, and
+``freebody new-case`` prints a commented template)::
 
-    name = "example"
-    description = "What this case shows, in one sentence."
+    name = "example"               # required
+    description = "What this case shows, in one sentence."   # optional, default ""
     duration = 10.0                # s; or duration_steps = 2 (a number of steps at every dt)
     dt = [0.01, 0.001]             # s, default time steps; steps = round(duration / dt)
-    [body]
+    [body]                         # required
     mass = 1.0                     # kg
     inertia = [[1,0,0],[0,2,0],[0,0,3]]   # kg m^2, about the COM, body frame
     # or: shape = "box" | "sphere" | "cylinder" | "capsule" | "ellipsoid" | "cone", size = [...] (m),
     # or: mesh = "part.obj" (closed OBJ/STL, relative to this file); with mass or density (kg/m^3)
-    [initial]
+    [initial]                      # optional: every key defaults (DEFAULTS): at rest at the origin
     position = [0, 0, 0]           # m, COM, world
     orientation = [1, 0, 0, 0]     # (w, x, y, z), body -> world
     linear_velocity = [0, 0, 0]    # m/s, COM, world
     angular_velocity = [0, 5, 0]   # rad/s, world
-    [world]
+    [world]                        # optional: no [world] is no gravity
     gravity = [0, 0, 0]            # m/s^2
     [[loads]]                      # zero or more
     force = [1, 0, 0]              # N, world; at point (world) or body_point (body) or the COM
     torque = [0, 0, 1]             # N m, world couple;  body_torque: N m, body-frame couple
     start = 0.0                    # s;  steps = N or end = <s>; neither: to the end
+
+``dt`` and ``duration`` (or ``duration_steps``) may be left out of a file when the command line
+gives ``--dt`` and ``--duration``: the Problem then has ``dts == ()`` and ``duration is None``, and
+:func:`check_run_settings` (called where the runs are expanded) says which is missing.
 """
 from __future__ import annotations
 
@@ -46,6 +51,23 @@ BODY_KEYS = {"mass", "inertia", "shape", "size", "density", "mesh"}
 INITIAL_KEYS = {"position", "orientation", "linear_velocity", "angular_velocity"}
 WORLD_KEYS = {"gravity"}
 LOAD_KEYS = {"force", "point", "body_point", "torque", "body_torque", "start", "steps", "end"}
+SECTIONS = {"body": BODY_KEYS, "initial": INITIAL_KEYS, "world": WORLD_KEYS, "loads": LOAD_KEYS}
+"""The top-level keys that are tables (``[[loads]]``: an array of tables) -> their keys."""
+REQUIRED_TOP_KEYS = frozenset({"name", "body"})
+"""Required whatever the command line says; ``dt`` and a duration are required to *run* a case,
+from the file or from ``--dt`` / ``--duration`` (:func:`check_run_settings`)."""
+DEFAULTS = {
+    "description": "",
+    "initial.position": [0.0, 0.0, 0.0],
+    "initial.orientation": [1.0, 0.0, 0.0, 0.0],
+    "initial.linear_velocity": [0.0, 0.0, 0.0],
+    "initial.angular_velocity": [0.0, 0.0, 0.0],
+    "world.gravity": [0.0, 0.0, 0.0],
+}
+"""Optional keys (dotted: section.key) -> the TOML value a case that leaves them out gets: a body
+at rest at the origin, unrotated, without gravity, without a description.  :func:`defaulted_keys`
+lists the ones a case used.  (A load's ``start`` defaults to 0 s too: a load without it acts from
+the first step; it is not listed.)"""
 # A case's name names its runs in tables, progress lines and file names: at most this many
 # characters, printable (no control characters or terminal escape sequences).
 CASE_NAME_MAX_CHARS = 100
@@ -105,6 +127,29 @@ def _exists(p: Path, shown: str) -> bool:
 def load_case(name_or_path: str | Path) -> Problem:
     """Parse and validate a case (bundled name or path) into a :class:`Problem`."""
     path = resolve_case(str(name_or_path))
+    return parse_case(_read_toml(path), str(path))
+
+
+def defaulted_keys(case: str | Path | dict) -> list[str]:
+    """The optional keys (dotted, as in :data:`DEFAULTS`) that a case leaves out and so gets by
+    default, in the order of DEFAULTS; e.g. ``["description", "world.gravity"]`` for a file
+    without a description and without ``[world]`` (no gravity).
+
+    case : a bundled case name or a path (read again; InputError as :func:`load_case`), or the
+        case's TOML data (a dict, as from ``tomllib``).  Meant for a case that loads.
+    """
+    data = case if isinstance(case, dict) else _read_toml(resolve_case(str(case)))
+    out = []
+    for dotted in DEFAULTS:
+        section, _, key = dotted.rpartition(".")
+        table = data.get(section, {}) if section else data
+        if not isinstance(table, dict) or key not in table:
+            out.append(dotted)
+    return out
+
+
+def _read_toml(path: Path) -> dict:
+    """The TOML data of the case file at ``path``; InputError naming the file if it is not one."""
     from ..results.io import read_regular_file
 
     where = printable(path)
@@ -118,7 +163,7 @@ def load_case(name_or_path: str | Path) -> Problem:
     except (ValueError, RecursionError) as e:  # e.g. an integer of more than 4300 digits; deep nesting
         why = "nested too deeply" if isinstance(e, RecursionError) else str(e).split(";")[0]
         raise InputError(f"{where}: invalid TOML: {why}") from None
-    return parse_case(data, str(path))
+    return data
 
 
 def check_step_count(duration: float, dt: float, fail) -> int:
@@ -150,6 +195,21 @@ def check_run_lengths(problems, dts=None, duration=None) -> None:
             if d < tol.INPUT_POSITIVE_MIN:
                 raise InputError(f"--dt: must be at least {tol.INPUT_POSITIVE_MIN:g} s (smaller steps are too "
                                  f"small to compute with in float64), got {d!r}")
+
+
+def check_run_settings(problems, dts=None, duration=None, sources=None) -> None:
+    """InputError when a problem has no time step (no ``dt`` in its file) and ``dts`` (``--dt``)
+    is empty, or no duration (neither ``duration`` nor ``duration_steps`` in its file) and
+    ``duration`` (``--duration``) is None.  ``sources``: where each problem came from (the paths or
+    names given on the command line), to name the file; else the case is named."""
+    for i, pb in enumerate(problems):
+        where = printable(sources[i]) if sources is not None else f"case {printable(pb.name)!r}"
+        if not dts and not pb.dts:
+            raise InputError(f"{where}: dt: missing; give dt = [...] (s, the time steps) in the case file "
+                             "or --dt on the command line")
+        if duration is None and pb.duration is None and pb.duration_steps is None:
+            raise InputError(f"{where}: duration: missing; give duration = ... (s) or duration_steps = ... "
+                             "in the case file or --duration on the command line")
 
 
 # --- validation helpers -----------------------------------------------------------------------
@@ -267,12 +327,109 @@ def _fmt(a) -> str:
     return "(" + ", ".join(f"{x:.6g}" for x in a) + ")"
 
 
+# --- templates (freebody new-case) -------------------------------------------------------------
+
+def case_template(name: str = "my-case", minimal: bool = False) -> str:
+    """A case file's text, valid as is (:func:`parse_case` accepts it; ``freebody run`` runs it).
+
+    The full template lists every key of every section, each with whether it is required, its
+    default (:data:`DEFAULTS`), unit and frame; the keys that are alternatives (shape, mesh, ...)
+    and the [[loads]] table are commented out.  ``minimal``: the five-line file of
+    docs/case-files.md, a body spinning about its middle axis.  InputError (from the parser, source
+    ``new-case``) for a name that no case may have."""
+    rows = _MINIMAL if minimal else _template_rows()
+    column = _COMMENT_COLUMN if not minimal else max(len(r[0]) for r in rows) + 1
+    data = tomllib.loads(_render(rows, "NAME", column))
+    data["name"] = name
+    parse_case(data, "new-case")  # the name's errors (one line), and the template's own
+    return _render(rows, name, column)
+
+
+def _render(rows, name: str, column: int) -> str:
+    """The template's text: rows of (assignment, comment), comments aligned after the assignments
+    shorter than ``column``; plain lines as they are."""
+    rows = [(f"name = {_toml(name)}", r[1]) if isinstance(r, tuple) and r[0] == "name = NAME" else r
+            for r in rows]
+    width = max(len(r[0]) for r in rows if isinstance(r, tuple) and len(r[0]) < column)
+    return "\n".join(r if isinstance(r, str) else f"{r[0]:<{width}}  # {r[1]}" for r in rows) + "\n"
+
+
+_COMMENT_COLUMN = 40  # assignments longer than this do not push the other comments right
+
+_MINIMAL = [
+    ("name = NAME", "required"),
+    ("dt = 0.01", "s, the time step"),
+    ("duration = 10.0", "s, simulated time"),
+    ("body = { mass = 1.0, inertia = [[1, 0, 0], [0, 2, 0], [0, 0, 3]] }", "kg; kg m^2, about the COM, body frame"),
+    ("initial = { angular_velocity = [0.01, 5, 0] }", "rad/s, world frame"),
+]
+
+
+def _template_rows() -> list:
+    """The full template: (assignment, comment) rows and plain lines."""
+    d = {k: _toml(v) for k, v in DEFAULTS.items()}
+    return [
+        "# A freebody case: one free rigid body (no contacts, no joints) in constant gravity, with",
+        "# optional external loads.  Every key is listed: the optional ones show their default, the",
+        "# alternatives are commented out.  SI units.  Frames: \"world\" is fixed; \"body\" is attached to",
+        "# the body, its origin at the centre of mass (COM).  Every key: docs/case-files.md.",
+        "",
+        ("name = NAME", "required: names the runs in tables and files (at most 100 printable characters)"),
+        (f"description = {d['description']}", "optional, default \"\": one sentence, shown in reports"),
+        ("dt = [0.01]", "s, the time steps (a number or a list; one run each); or --dt on the command line"),
+        ("duration = 10.0", "s, simulated time, steps = round(duration / dt); or --duration on the command line"),
+        ("# duration_steps = 1000", "instead of duration: this many steps at every dt"),
+        "",
+        ("[body]", "required: mass and inertia, or a shape, or a mesh"),
+        ("mass = 1.0", "kg; with shape or mesh: mass or density"),
+        ("inertia = [[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0]]", "kg m^2, about the COM, body frame"),
+        "# Instead of inertia, a solid of uniform density with its COM at the body origin:",
+        ('# shape = "box"', " | ".join(massprops.SHAPES)),
+        ("# size = [0.1, 0.2, 0.3]", "m, body frame, by shape:"),
+        *(f"#     {shape:<9}  {doc}" for shape, doc in massprops.SIZE_DOC.items()),
+        ("# density = 1000.0", "kg/m^3, instead of mass (with shape or mesh)"),
+        "# or a closed triangle mesh (the body origin is its COM, the body axes are the mesh's axes):",
+        ('# mesh = "part.obj"', "an OBJ or STL file, coordinates in m, path relative to this file"),
+        "",
+        ("[initial]", "optional: the state at t = 0"),
+        (f"position = {d['initial.position']}", f"m, COM, world frame; default {d['initial.position']}"),
+        (f"orientation = {d['initial.orientation']}",
+         f"unit quaternion (w, x, y, z), body -> world; default {d['initial.orientation']} (identity)"),
+        (f"linear_velocity = {d['initial.linear_velocity']}",
+         f"m/s, COM, world frame; default {d['initial.linear_velocity']}"),
+        ("angular_velocity = [0.01, 5.0, 0.0]",
+         f"rad/s, world frame; default {d['initial.angular_velocity']} (at rest)"),
+        "",
+        ("[world]", "optional"),
+        (f"gravity = {d['world.gravity']}",
+         f"m/s^2, world frame; default {d['world.gravity']}: no gravity (on Earth: [0.0, 0.0, -9.81])"),
+        "",
+        ("# [[loads]]", "optional, zero or more external loads, each constant over a step"),
+        ("# force = [1.0, 0.0, 0.0]", "N, world frame; acts at the COM unless point or body_point is given"),
+        ("# point = [0.0, 0.0, 0.0]", "m, world frame: a point fixed in the world; or"),
+        ("# body_point = [0.0, 0.1, 0.0]", "m, body frame: a point of the body (moves with it)"),
+        ("# torque = [0.0, 0.0, 1.0]", "N m, world frame: a pure couple"),
+        ("# body_torque = [0.0, 0.0, 1.0]", "N m, body frame: a couple that turns with the body"),
+        ("# start = 0.0", "s, default 0.0: acts from the first step time t_k = k dt >= start"),
+        ("# steps = 1", "acts on this many steps; or"),
+        ("# end = 0.5", "s: acts while t_k < end; neither steps nor end: to the end of the run"),
+    ]
+
+
+def _toml(value) -> str:
+    """A TOML value: a basic string of printable characters (quotes and backslashes escaped), or
+    a list of floats."""
+    if isinstance(value, str):
+        return '"' + "".join("\\" + ch if ch in '"\\' else ch for ch in value) + '"'
+    return "[" + ", ".join(repr(float(x)) for x in value) + "]"
+
+
 # --- the parser -------------------------------------------------------------------------------
 
 def parse_case(data: dict, source: str = "<case>") -> Problem:
     """Validate a case's TOML data (as from ``tomllib``) into a :class:`Problem`."""
     c = _Ctx(source)
-    c.keys(data, TOP_KEYS, "", required={"name", "description", "dt", "body", "initial"})
+    c.keys(data, TOP_KEYS, "", required=REQUIRED_TOP_KEYS)
     name = data["name"]
     if not isinstance(name, str) or not name.strip():
         c.fail("name", "must be a non-empty string")
@@ -282,25 +439,29 @@ def parse_case(data: dict, source: str = "<case>") -> Problem:
     if not name.isprintable():
         c.fail("name", f"must be printable text, without control characters or terminal escape "
                        f"sequences, got {abbreviated(name)}")
-    if not isinstance(data["description"], str):
+    description = data.get("description", DEFAULTS["description"])
+    if not isinstance(description, str):
         c.fail("description", "must be a string")
 
-    dts_raw = data["dt"]
-    dts_list = dts_raw if isinstance(dts_raw, list) else [dts_raw]
-    if not dts_list:
-        c.fail("dt", "must list at least one time step")
-    dts = tuple(c.number(d, "dt", positive=True, tiny_ok=True) for d in dts_list)
+    dts: tuple[float, ...] = ()  # none in the file: --dt must give them (check_run_settings)
+    if "dt" in data:
+        dts_raw = data["dt"]
+        dts_list = dts_raw if isinstance(dts_raw, list) else [dts_raw]
+        if not dts_list:
+            c.fail("dt", "must list at least one time step")
+        dts = tuple(c.number(d, "dt", positive=True, tiny_ok=True) for d in dts_list)
 
-    if ("duration" in data) == ("duration_steps" in data):
-        c.fail("duration", "give exactly one of duration (s) and duration_steps")
-    duration = duration_steps = None
+    if "duration" in data and "duration_steps" in data:
+        c.fail("duration", "give exactly one of duration (s) and duration_steps, not both "
+                           "(or neither, and --duration on the command line)")
+    duration = duration_steps = None  # neither: --duration must give it (check_run_settings)
     if "duration" in data:
         duration = c.number(data["duration"], "duration", positive=True, tiny_ok=True)
         for d in dts:
             if duration < d * (1 - tol.DURATION_VS_DT_RTOL):
                 c.fail("duration", f"{duration} s is shorter than dt = {d} s")
             check_step_count(duration, d, lambda why: c.fail("duration", why))
-    else:
+    elif "duration_steps" in data:
         duration_steps = c.integer(data["duration_steps"], "duration_steps",
                                    maximum=tol.MAX_STEPS_PER_RUN, why_maximum=" (MAX_STEPS_PER_RUN)")
     for d in dts:  # after the step count, which says more about a tiny dt
@@ -309,17 +470,16 @@ def parse_case(data: dict, source: str = "<case>") -> Problem:
                          f"compute with in float64), got {d!r}")
 
     body = _parse_body(c, data["body"])
-    initial = _parse_initial(c, data["initial"])
-    gravity = np.zeros(3)
-    if "world" in data:
-        c.keys(data["world"], WORLD_KEYS, "world", required={"gravity"})
-        gravity = c.vector(data["world"]["gravity"], "world.gravity", 3)
+    initial = _parse_initial(c, data.get("initial", {}))
+    world = data.get("world", {})  # no [world]: no gravity (DEFAULTS; defaulted_keys says so)
+    c.keys(world, WORLD_KEYS, "world")
+    gravity = c.vector(world.get("gravity", DEFAULTS["world.gravity"]), "world.gravity", 3)
 
     loads_raw = data.get("loads", [])
     if not isinstance(loads_raw, list):
         c.fail("loads", "must be an array of tables ([[loads]])")
     loads = tuple(_parse_load(c, ld, i) for i, ld in enumerate(loads_raw))
-    return Problem(name=name, description=data["description"], body=body, initial=initial,
+    return Problem(name=name, description=description, body=body, initial=initial,
                    gravity=gravity, loads=loads, duration=duration, duration_steps=duration_steps,
                    dts=dts)
 
@@ -396,15 +556,20 @@ def _parse_mesh_body(c: _Ctx, b) -> Body:
 
 
 def _parse_initial(c: _Ctx, t) -> InitialState:
-    c.keys(t, INITIAL_KEYS, "initial", required=INITIAL_KEYS)
-    q = _orientation(c, t["orientation"])
+    """[initial], every key optional (DEFAULTS: at rest at the origin, unrotated)."""
+    c.keys(t, INITIAL_KEYS, "initial")
+
+    def get(key):
+        return t.get(key, DEFAULTS[f"initial.{key}"])
+
+    q = _orientation(c, get("orientation"))
     n = float(np.linalg.norm(q))
     if abs(n - 1) > tol.UNIT_QUATERNION_RTOL:
         warnings.warn(f"{c.source}: initial.orientation: |q| = {n:.6g}, normalised to a unit "
                       "quaternion", CaseWarning, stacklevel=2)
-    return InitialState(position=c.vector(t["position"], "initial.position", 3), quaternion_wxyz=q / n,
-                        linear_velocity=c.vector(t["linear_velocity"], "initial.linear_velocity", 3),
-                        angular_velocity=c.vector(t["angular_velocity"], "initial.angular_velocity", 3))
+    return InitialState(position=c.vector(get("position"), "initial.position", 3), quaternion_wxyz=q / n,
+                        linear_velocity=c.vector(get("linear_velocity"), "initial.linear_velocity", 3),
+                        angular_velocity=c.vector(get("angular_velocity"), "initial.angular_velocity", 3))
 
 
 def _orientation(c: _Ctx, value) -> np.ndarray:

@@ -12,6 +12,7 @@ from ..adapters.base import (UnknownEngine, base_engine, default_engine_names, e
                              load_adapter, resolve_engine, split_engine_name)
 from ..adapters.capture import capture_output
 from ..errors import InputError
+from ..input.casefile import check_run_settings
 from ..reference_impl.problem import Problem
 from . import engine_envs
 from .records import PRECISIONS, RunSpec
@@ -191,6 +192,7 @@ def expand(problems: list[Problem], engines: list[str], integrators: list[str] |
                 raise InputError(f"--dt: must be a finite number > 0, got {d}")
     if duration is not None and not (np.isfinite(duration) and duration > 0):
         raise InputError(f"--duration: must be a finite number > 0, got {duration}")
+    check_run_settings(problems, dts, duration, sources)  # a case without dt or duration needs --dt, --duration
     per_engine: dict[str, list[str]] = {}
     for engine in engines:
         offered = engine_integrators(engine)
