@@ -104,21 +104,21 @@ def test_progress_on_a_terminal_rewrites_one_line():
     out = _Tty()
     bar = ProgressDisplay(2, "bodies", stream=out)
     bar.update("first")
-    bar.update("second")
+    bar.update("second")  # the last: shown whatever the throttle, and ended
     bar.note("done")
     lines = out.getvalue().split("\r\033[K")
-    assert lines[0] == "" and lines[1].startswith("[1/2 bodies] ") and lines[1].endswith("s first")
-    assert lines[2].startswith("[2/2 bodies] ") and lines[2].endswith("s second\n\ndone\n")
+    assert lines[0] == "" and lines[1].startswith("[1/2 bodies]  50% ") and lines[1].endswith("ETA --  first")
+    assert lines[2].startswith("[2/2 bodies] 100% ") and lines[2].endswith("ETA 0:00  second\ndone\n")
 
 
-def test_progress_in_a_log_writes_every_nth_line_and_the_last():
+def test_progress_in_a_log_writes_the_first_every_nth_line_and_the_last():
     out = io.StringIO()
-    bar = ProgressDisplay(5, stream=out, every=2)
+    bar = ProgressDisplay(5, "", stream=out, every=2)
     for i in range(5):
         bar.update(f"run {i}")
     lines = out.getvalue().splitlines()
-    assert [ln.split()[0] for ln in lines] == ["[2/5]", "[4/5]", "[5/5]"]
-    assert lines[0].endswith("s run 1")
+    assert [ln.split()[0] for ln in lines] == ["[1/5]", "[2/5]", "[4/5]", "[5/5]"]
+    assert lines[1].endswith("  run 1") and "\r" not in out.getvalue()
     quiet = io.StringIO()
     ProgressDisplay(3, stream=quiet, enabled=False).update("x")
     assert quiet.getvalue() == ""

@@ -7,7 +7,7 @@ from ..input.casefile import bundled_case_paths, check_run_lengths, load_case
 from ..run import Status, expand, select_engines
 from ..run.suite import run_specs
 from ..results.outdir import out_folder, output_lock
-from ..report.summary import summary_table
+from ..report.summary import summary_table, summary_width, terminal_summary, where_to_look
 from .argtypes import (positive_float as _positive_float, positive_int as _positive_int,
                        save_interval as _save_interval, timeout_seconds as _timeout_seconds)
 
@@ -43,6 +43,9 @@ def add_parser(sub) -> None:
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default {DEFAULT_OUT}); one freebody process writes it at a time")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--table", action="store_true",
+                   help="also print the full table, one row a run (report.md has it too); default: "
+                        "a summary of cases x engines and the runs that are not ok")
     p.add_argument("--no-report", action="store_true",
                    help="do not write report.md and report.html (freebody report DIR writes them later)")
     p.add_argument("--jobs", type=_positive_int, metavar="N",
@@ -87,11 +90,11 @@ def run(args) -> int:
         doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet, save_every=args.save_every,
                            jobs=jobs, timeout=args.timeout, executor=args.executor,
                            scheduler=args.scheduler, isolate=not args.no_isolation)
-        print(summary_table(doc["runs"]), flush=True)
+        if args.table:
+            print(summary_table(doc["runs"]) + "\n")
+        print(terminal_summary(doc["runs"], summary_width()), flush=True)  # before the reports take their time
         from ..report.render import finish_run  # fitted orders into results.json, then report.md/.html
 
         doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report)
-    print(f"\nresults: {out_dir / 'results.json'}")
-    for path in reports:
-        print(f"report: {path}")
+    print("\n" + where_to_look(out_dir, reports))
     return 1 if any(r["status"] == Status.FAILED for r in doc["runs"]) else 0

@@ -7,7 +7,7 @@ ORDER = 40
 from pathlib import Path
 
 from .. import tolerances as tol
-from ..errors import InputError
+from ..errors import InputError, printable
 from .argtypes import (nonnegative_int as _nonneg_int, positive_float as _positive_float,
                        positive_int as _positive_int, writable_folder)
 
@@ -78,7 +78,8 @@ def run(args) -> int:
     out = sweep(settings, engines, args.integrator, out_dir, progress=not args.quiet,
                 precisions=args.precision, jobs=args.jobs or default_jobs())
     print(out.report)
-    print(f"\nresults: {Path(args.out) / 'sweep.json'}")
+    print(f"\nreport (the text above): {printable(Path(args.out) / 'sweep.txt')}")
+    print(f"data: {printable(Path(args.out) / 'sweep.json')}")
     return 1 if any(r["status"] == Status.FAILED for r in out.document["runs"]) else 0
 
 
