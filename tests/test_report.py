@@ -161,8 +161,9 @@ def test_engine_pairs_report_final_state_differences(run_dir, tmp_path):
     rows = [ln.split("|")[1:-1] for ln in md_path.read_text().splitlines() if "| twin/rk4-copy |" in ln]
     pairs = [[c.strip() for c in row] for row in rows if row[1].strip() == "reference/rk4"]
     assert len(pairs) == 3  # one per dt
-    for dt, a, b, angle, dL, dE in pairs:  # identical final states
+    for dt, a, b, angle, dL, dE, relation in pairs:  # identical final states
         assert float(angle) < SAME_STATE_RAD and float(dL) == 0.0 and float(dE) == 0.0
+        assert relation == "-"  # the twin's scheme was not identified: no relation claimed
 
 
 # --- the order fit --------------------------------------------------------------------------------

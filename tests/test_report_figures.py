@@ -105,3 +105,61 @@ def test_figures_are_the_same_in_one_process_or_several(run_dir):
                                               ("quiz", 0.005), ("offset_push", 0.01), ("offset_push", 0.005)]
     assert serial == parallel and notes1 == notes2
     assert all(png.startswith(b"\x89PNG") for png in serial.values())
+
+
+# --- every text inside its figure; colours --------------------------------------------------------------
+
+def test_a_cut_label_is_found_and_the_figure_grown_to_hold_it():
+    fig = plots._figure(4.0, 3.0)
+    ax = fig.add_axes((0.0, 0.1, 1.0, 0.8))  # no margin: the tick labels fall outside
+    ax.set_yticks([0.0, 1.0], ["a rather long tick label", "another one"])
+    ax.set_title("a title")
+    assert plots.clipped_texts(fig)  # found
+    png = plots.png_bytes(fig)  # grown to hold them, no error
+    assert plots.clipped_texts(fig) == []
+    from PIL import Image
+
+    assert Image.open(io.BytesIO(png)).size[0] > 4.0 * plots.DPI
+
+
+def test_a_text_that_cannot_fit_fails_loudly():
+    fig = plots._figure(4.0, 3.0)
+    fig.add_subplot(1, 1, 1)
+    fig.text(-0.6, 0.5, "anchored outside the figure")  # moves with the figure's edge: never fits
+    with pytest.raises(plots.ClippedText, match="anchored outside"):
+        plots.png_bytes(fig)
+
+
+def test_every_figure_keeps_its_text_inside(run_dir, monkeypatch):
+    """Every figure of the report (heat map per dt, convergence, speed, per-case) after fitting:
+    no text beyond its edge; the heat map has one panel per time step."""
+    doc = json.loads((run_dir / "results.json").read_text())
+    runs, conv = doc["runs"], convergence_of(doc)
+    # long labels and case names, as an engine with a long integrator name makes them
+    for r in runs:
+        r["integrator"] = r["integrator"] + "-with-a-rather-long-integrator-name"
+    seen = []
+    real = plots.png_bytes
+
+    def check(fig):
+        png = real(fig)
+        seen.append((fig, plots.text_overflow(fig)[1]))
+        return png
+
+    monkeypatch.setattr(plots, "png_bytes", check)
+    physics = {c: rd.case_physics(doc, c) for c in rd.by_case(runs)}
+    figures, _ = plots.render_figures(runs, conv, physics, run_dir, jobs=1)
+    assert all(png is not None for png in figures.values()) and len(seen) == len(figures)
+    assert [names for _, names in seen] == [[]] * len(seen)
+    heat = seen[0][0]
+    assert len([ax for ax in heat.axes if ax.images]) == len(rd.dts(runs))  # one panel per dt
+
+
+def test_colour_per_engine_style_per_integrator():
+    labs = ["reference/rk4", "reference/euler-quat", "mujoco/Euler", "mujoco/RK4", "pybullet/maximal"]
+    st = plots.styles(labs)
+    assert st["reference/rk4"]["color"] == st["reference/euler-quat"]["color"] == plots.REFERENCE_COLOUR
+    assert st["mujoco/Euler"]["color"] == st["mujoco/RK4"]["color"] == plots.OKABE_ITO[0]
+    assert st["pybullet/maximal"]["color"] == plots.OKABE_ITO[1]
+    within = [(st[lab]["linestyle"], st[lab]["marker"]) for lab in labs[:2]]
+    assert len(set(within)) == 2

@@ -6,6 +6,7 @@ non-finite becomes None (shown as "-"), never a NaN in a table or a plot.
 from __future__ import annotations
 
 import math
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,6 +71,30 @@ def by_case(runs: list[dict]) -> dict[str, list[dict]]:
     for r in runs:
         out.setdefault(r["case"], []).append(r)
     return out
+
+
+def _anchor_text(text: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in text)
+
+
+def case_anchor(case: str) -> str:
+    """The id of a case's section in report.html."""
+    return "case-" + _anchor_text(case)
+
+
+def figure_anchor(case: str, dt: float) -> str:
+    """The id of a case's figure at one dt in report.html (the plots of its runs at that dt)."""
+    return f"fig-{_anchor_text(case)}-dt{float(dt):g}"
+
+
+def run_anchor(run: dict) -> str:
+    """The id of a run's row in its case's Runs table in report.html."""
+    return f"run-{_anchor_text(run['case'])}-{_anchor_text(label(run))}-dt{float(run['dt']):g}"
+
+
+def conventions_anchor(engine: str) -> str:
+    """The id of an engine's rows in the "Engine conventions and traps" section of report.html."""
+    return "conventions-" + _anchor_text(engine)
 
 
 def labels(runs: list[dict]) -> list[str]:
@@ -148,6 +173,8 @@ class Pair:
     angle_rad : geodesic angle between the final orientations, rad.
     dL_rel : |L_a - L_b| / mean(|L_a|, |L_b|) (world, about the COM), or None.
     dE_rel : |E_a - E_b| / mean(KE_a, KE_b), or None.
+    relation : whether both reproduce the same reference map or differ by scheme (see
+        :func:`freebody.report.findings.pair_relation`).
     """
 
     dt: float
@@ -156,6 +183,7 @@ class Pair:
     angle_rad: float | None
     dL_rel: float | None
     dE_rel: float | None
+    relation: str = ""  # 'same map (X)' or 'differs by scheme (A vs B)' (findings.pair_relation)
 
 
 def _final(run: dict, out_dir: Path | None) -> dict | None:
@@ -218,15 +246,20 @@ def _end_quantities(fs: dict, physics: CasePhysics | None):
 
 
 def pairwise(runs: list[dict], physics: CasePhysics | None, out_dir: Path | None = None) -> list[Pair]:
-    """Engine-vs-engine differences at the end of one case's runs, largest angle first
+    """Engine-vs-engine differences at the end of one case's runs: per dt (coarsest first), the
+    pairs of runs that reproduce the same reference map first (there a difference beyond round-off
+    is an engine's, not a scheme's), then the pairs that differ by scheme, each largest angle first
     (pairs whose angle is undefined last); only ok runs take part."""
+    from .findings import pair_relation
+
     finals = {id(r): _final(r, out_dir) for r in runs}
     ends = {k: (_end_quantities(fs, physics) if fs is not None else None) for k, fs in finals.items()}
     rows = []
     for a, b in pair_runs([r for r in runs if finals[id(r)] is not None]):
         ea, eb = ends[id(a)], ends[id(b)]
+        relation = pair_relation(a, b)
         if ea is None or eb is None:
-            rows.append(Pair(float(a["dt"]), label(a), label(b), None, None, None))
+            rows.append(Pair(float(a["dt"]), label(a), label(b), None, None, None, relation))
             continue
         angle = finite_or_none(geodesic_angle(ea[0], eb[0]))
         dL = dE = None
@@ -235,29 +268,32 @@ def pairwise(runs: list[dict], physics: CasePhysics | None, out_dir: Path | None
             dL = finite_or_none(np.linalg.norm(ea[1] - eb[1]) / scale) if scale > 0 else None
             kscale = 0.5 * (ea[3] + eb[3])
             dE = finite_or_none(abs(ea[2] - eb[2]) / kscale) if kscale > 0 else None
-        rows.append(Pair(float(a["dt"]), label(a), label(b), angle, dL, dE))
-    rows.sort(key=lambda p: (-p.dt, p.angle_rad is None, -(p.angle_rad or 0.0), p.a, p.b))
+        rows.append(Pair(float(a["dt"]), label(a), label(b), angle, dL, dE, relation))
+    rows.sort(key=lambda p: (-p.dt, not p.relation.startswith("same map"), p.angle_rad is None,
+                             -(p.angle_rad or 0.0), p.a, p.b))
     return rows
 
 
 # --- front page ---------------------------------------------------------------------------------
 
-def worst_cells(runs: list[dict]) -> dict[tuple[str, str], tuple[str, float | None]]:
-    """(case, label) -> (worst status, worst orientation_error_max_rad over the dts of ok runs).
-
-    The status is the worst of the cell's runs (failed > diverged > skipped > ok).
-    """
-    cells: dict[tuple[str, str], list[dict]] = {}
+def error_cells(runs: list[dict]) -> dict[float, dict[tuple[str, str], tuple[str, float | None]]]:
+    """dt -> {(case, label): (status, orientation_error_max_rad of the ok run, else None)}, dts
+    coarsest first: the heat map's panels, one per time step (no maximum over time steps, where
+    the coarsest would hide the others)."""
+    out: dict[float, dict] = {}
     for r in runs:
-        cells.setdefault((r["case"], label(r)), []).append(r)
-    out = {}
-    for key, rs in cells.items():
-        status = min((r.get("status", Status.FAILED.value) for r in rs),
-                     key=lambda s: STATUS_ORDER.index(s) if s in STATUS_ORDER else 0)
-        vals = [metric(r, ORIENTATION_ERROR_MAX) for r in rs if r.get("status") == Status.OK]
-        vals = [v for v in vals if v is not None]
-        out[key] = (status, max(vals) if vals else None)
-    return out
+        dt = finite_or_none(r.get("dt"))
+        if dt is None:
+            continue
+        status = r.get("status", Status.FAILED.value)
+        v = metric(r, ORIENTATION_ERROR_MAX) if status == Status.OK else None
+        cell = out.setdefault(float(dt), {})
+        key = (r["case"], label(r))
+        rank = STATUS_ORDER.index(status) if status in STATUS_ORDER else 0
+        old = cell.get(key)
+        if old is None or rank < (STATUS_ORDER.index(old[0]) if old[0] in STATUS_ORDER else 0):
+            cell[key] = (status, v)  # two runs of a cell (not made by freebody run): the worst shows
+    return {dt: out[dt] for dt in sorted(out, reverse=True)}
 
 
 def _show(v) -> str:
@@ -268,40 +304,80 @@ def _show(v) -> str:
     return str(v)
 
 
-def settings_forced(runs: list[dict]) -> list[tuple[str, str, str, str]]:
-    """(engine, setting, engine default, value(s) set) for every setting an adapter changed.
-
-    ``engine_settings`` entries are ``{key: {"default": d, "set": v}}``; other shapes are shown as
-    they are.  Distinct values across runs are joined with ', '.
-    """
-    table: dict[tuple[str, str], tuple[dict, dict]] = {}
+def _settings_table(runs: list[dict]) -> dict[tuple[str, str], tuple[dict, dict, bool]]:
+    """(engine, setting) -> (distinct defaults, distinct values set, changed on some run)."""
+    table: dict[tuple[str, str], tuple[dict, dict, list]] = {}
     for r in runs:
         for key, val in sorted((r.get("engine_settings") or {}).items()):
-            defaults, sets = table.setdefault((r["engine"], key), ({}, {}))
+            defaults, sets, changed = table.setdefault((r["engine"], key), ({}, {}, [False]))
             if isinstance(val, dict) and ("default" in val or "set" in val):
-                defaults[_show(val.get("default"))] = None
-                sets[_show(val.get("set"))] = None
-            else:
+                d, v = _show(val.get("default")), _show(val.get("set"))
+                defaults[d] = None
+                sets[v] = None
+                changed[0] = changed[0] or d != v
+            else:  # another shape: shown as it is
                 sets[_show(val)] = None
-    return [(e, k, ", ".join(d) or "-", ", ".join(s) or "-") for (e, k), (d, s) in table.items()]
+                changed[0] = True
+    return {k: (d, v, c[0]) for k, (d, v, c) in table.items()}
 
 
-def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, int, float | None]]:
-    """(engine run, reference map reproduced or 'none (closest X)', number of runs, max difference
-    rad) for every non-reference engine run whose scheme was identified."""
-    acc: dict[tuple[str, str], list] = {}
+def settings_forced(runs: list[dict]) -> list[tuple[str, str, str, str]]:
+    """(engine, setting, engine default, value(s) set) for every setting an adapter changed: set
+    to a value other than the engine's default on at least one run.
+
+    ``engine_settings`` entries are ``{key: {"default": d, "set": v}}``; other shapes are shown as
+    they are.  Distinct values across runs are joined with ', '.  Settings freebody sets to the
+    engine's own default on every run are left out (:func:`settings_unchanged` counts them).
+    """
+    return [(e, k, ", ".join(d) or "-", ", ".join(v) or "-")
+            for (e, k), (d, v, changed) in _settings_table(runs).items() if changed]
+
+
+def settings_unchanged(runs: list[dict]) -> int:
+    """How many (engine, setting) freebody sets, on every run, to the engine's default value."""
+    return sum(not changed for _, _, changed in _settings_table(runs).values())
+
+
+def settings_note(runs: list[dict]) -> str:
+    """The line under the settings table: the settings left out as unchanged."""
+    n = settings_unchanged(runs)
+    return (f"Only settings set to a value other than the engine's default are listed; {n} more "
+            f"(engine, setting) pair{' is' if n == 1 else 's are'} set to the default value itself "
+            f"(no change)." if n else "")
+
+
+REPRODUCTION_COLUMNS = ("engine run", "reproduces", "runs", "elsewhere (case dt: map)", "max distance (rad)")
+
+
+def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, str, str, float | None]]:
+    """One row per non-reference engine run whose scheme was identified: (engine run, the map most
+    of its ok runs reproduce (or 'none'), 'n of N', the runs that reproduce another map or none
+    ('case dt: map', with the case's name), the largest distance (rad) of its runs from the maps
+    they reproduce or come closest to)."""
+    from .findings import _majority_map, scheme_key, scheme_set
+
+    by_label: dict[str, list[dict]] = {}
     for r in runs:
-        m = r.get("matches_reference")
-        if not isinstance(m, dict):
-            continue
-        what = reproduced_text(m) or (f"none (closest {m['closest']})" if m.get("closest") else "none")
-        slot = acc.setdefault((label(r), what), [0, None])
-        slot[0] += 1
-        d = finite_or_none(m.get("max_orientation_diff_rad"))
-        if d is not None:
-            slot[1] = d if slot[1] is None else max(slot[1], d)
-    order = {lab: i for i, lab in enumerate(labels(runs))}
-    return [(lab, what, n, d) for (lab, what), (n, d) in sorted(acc.items(), key=lambda kv: order[kv[0][0]])]
+        if scheme_key(r) is not None:
+            by_label.setdefault(label(r), []).append(r)
+    out = []
+    for lab, rs in by_label.items():
+        best, n, total = _majority_map(rs)
+        other = []
+        for r in rs:
+            if best is None or best not in scheme_set(r):
+                name, reproduced = scheme_key(r)
+                other.append(f"{r['case']} {float(r['dt']):g}: {name if reproduced else f'none (closest {name})'}")
+        shown = best or "none"
+        if best is not None:  # maps indistinguishable from it on every run that reproduces it: a tie
+            sets = [scheme_set(r) for r in rs if best in scheme_set(r)]
+            tie = [x for x in sets[0] if all(x in s_ for s_ in sets)]
+            shown = f"tie: {' = '.join(tie)}" if len(tie) >= 2 else best
+        dists = [finite_or_none((r.get("matches_reference") or {}).get("max_orientation_diff_rad")) for r in rs]
+        dists = [d for d in dists if d is not None]
+        out.append((lab, shown, f"{n if best else 0} of {total}", "; ".join(other) or "-",
+                    max(dists) if dists else None))
+    return out
 
 
 PORT_COLUMNS = ("case", "engine run", "dt", "against", "max orientation diff (rad)",
@@ -445,6 +521,21 @@ def observed_orders(convergence: list[dict], runs: list[dict]) -> tuple[list[str
         row.append(expected_order([r for r in runs if label(r) == lab and r.get("case") in cases]) or "-")
         rows.append(row)
     return ["engine run", *cases, ORDER_FIT_COLUMN, ORDER_EXPECTED_COLUMN], rows
+
+
+def trajectory_reader(out_dir: Path | None):
+    """A findings trajectory provider (:data:`freebody.report.findings.TrajectoryOf`): run ->
+    (t (n,) s, q (n, 4), q_truth (n, 4)) at its saved samples, read from its trajectory file under
+    ``out_dir``; None when it has none or it cannot be read."""
+    def read(run: dict):
+        if out_dir is None or not run.get("trajectory"):
+            return None
+        try:
+            with np.load(Path(out_dir) / run["trajectory"]) as z:
+                return (np.asarray(z["t"]), np.asarray(z["quaternion_wxyz"]), np.asarray(z["truth_quaternion_wxyz"]))
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+            return None
+    return read
 
 
 # --- error series of the per-case figures ---------------------------------------------------------

@@ -1,5 +1,12 @@
-"""report.html: one self-contained page (inline CSS, plots embedded as base64 PNG data URIs) that
-opens offline in any browser.  Same tables as report.md, plus the figures."""
+"""report.html: one self-contained page (inline CSS and a few lines of script, plots embedded as
+base64 PNG data URIs) that opens offline in any browser.  Same tables as report.md, plus the
+figures.
+
+The page opens on the verdict: the findings (each linking to the run, its plots and its engine's
+conventions), the comparison with a baseline when one was given, and per case the engine runs
+grouped by the reference map they reproduce.  Tables fit a laptop screen: text cells wrap, numbers
+do not, and a table still wider than the page scrolls inside its own box.
+"""
 from __future__ import annotations
 
 import base64
@@ -7,6 +14,7 @@ from html import escape
 from pathlib import Path
 
 from . import data as rd
+from . import findings as fd
 from . import markdown as md
 from ..results.versions import VERSIONS_NOTE, side_by_side, version_table
 from ..run.records import Status
@@ -17,62 +25,111 @@ body { font-family: system-ui, -apple-system, 'Segoe UI', sans-serif; margin: 1.
 h1 { margin-bottom: 0.2em; } h2 { border-bottom: 1px solid #ccc; padding-bottom: 0.2em; margin-top: 2em; }
 h3 { margin-top: 1.4em; }
 table { border-collapse: collapse; font-size: 12px; margin: 0.5em 0; }
-th, td { border: 1px solid #ddd; padding: 2px 6px; text-align: left; white-space: nowrap; }
-th { background: #f3f3f3; } td.num { font-family: ui-monospace, monospace; text-align: right; }
+th, td { border: 1px solid #ddd; padding: 2px 6px; text-align: left; vertical-align: top;
+         white-space: normal; overflow-wrap: break-word; }
+th { background: #f3f3f3; }
+td.num { font-family: ui-monospace, monospace; text-align: right; white-space: nowrap; overflow-wrap: normal; }
+td.label { white-space: nowrap; }
 td.ok { color: #1a7f37; } td.diverged { background: #333; color: #fff; } td.failed { background: #b2182b; color: #fff; }
 td.skipped { background: #e5e5e5; color: #555; }
-.meta { color: #555; font-size: 13px; } .note { color: #555; font-size: 13px; }
+.meta { color: #555; font-size: 13px; } .note { color: #555; font-size: 13px; max-width: 75em; }
 .warn { background: #fff3cd; border: 1px solid #e0c36b; padding: 0.5em 1em; }
 img { max-width: 100%; height: auto; display: block; margin: 0.5em 0; border: 1px solid #eee; }
+figure { margin: 0; }
 nav a { margin-right: 0.8em; display: inline-block; } details summary { cursor: pointer; color: #0550ae; }
-.scroll { overflow-x: auto; } table.wrap td { white-space: normal; max-width: 60em; }
+.scroll { overflow-x: auto; max-width: 100%; }
+ul.findings { padding-left: 1.2em; } ul.findings li { margin: 0.25em 0; }
+.sev { display: inline-block; min-width: 4.5em; text-align: center; border-radius: 3px; padding: 0 4px;
+       font-size: 12px; font-weight: 600; }
+.sev-error { background: #b2182b; color: #fff; } .sev-warning { background: #E69F00; color: #000; }
+.sev-info { background: #d9ecf7; color: #000; } .sev-baseline { background: #555; color: #fff; }
+.links a { margin-left: 0.4em; font-size: 12px; }
+details.case { margin: 0.3em 0; } details.case > summary { font-weight: 600; }
+:target { outline: 2px solid #0072B2; }
+"""
+# Opens the folded sections (<details>) holding the target of a link, so #anchors always land.
+SCRIPT = """
+function freebodyOpen() {
+  var id = decodeURIComponent(location.hash.slice(1)); if (!id) return;
+  var el = document.getElementById(id); if (!el) return;
+  for (var p = el; p; p = p.parentElement) { if (p.tagName === 'DETAILS') p.open = true; }
+  el.scrollIntoView();
+}
+window.addEventListener('hashchange', freebodyOpen);
+window.addEventListener('DOMContentLoaded', freebodyOpen);
 """
 NUMERIC = {"dt (s)", "orientation max (rad)", "orientation final (rad)", "L max (rel)", "E max (rel)",
            "position max (m)", "wall s / sim s", "runs", "max difference (rad)", "order p",
            "orientation (rad)", "L (rel)", "E (rel)", md.ORTHONORMALITY_COLUMN, "fit rms (decades)",
-           rd.ORDER_FIT_COLUMN}
+           rd.ORDER_FIT_COLUMN, "max distance (rad)", "orientation error max (rad)", "dt"}
+LABEL_COLUMNS = {"engine run", "run A", "run B", "run"}
 FOLD_ROWS = 16  # longer tables are folded in a <details> element
 
 
-def img(png: bytes | None, alt: str) -> str:
+class Html(str):
+    """A table cell that is markup already (links), not text to escape."""
+
+
+def _cell(c) -> str:
+    return str(c) if isinstance(c, Html) else escape(str(c))
+
+
+def img(png: bytes | None, alt: str, anchor: str | None = None) -> str:
+    ident = f' id="{escape(anchor)}"' if anchor else ""
     if png is None:
-        return f'<p class="note">({escape(alt)}: nothing to plot)</p>'
+        return f'<p class="note"{ident}>({escape(alt)}: nothing to plot)</p>'
     data = base64.b64encode(png).decode("ascii")
-    return f'<img alt="{escape(alt)}" src="data:image/png;base64,{data}">'
+    return f'<figure{ident}><img alt="{escape(alt)}" src="data:image/png;base64,{data}"></figure>'
 
 
-def table(header, rows, status_col: int | None = None, fold: str | None = None, wrap: bool = False) -> str:
+def table(header, rows, status_col: int | None = None, fold: str | None = None, wrap: bool = False,
+          row_ids: list[str | None] | None = None) -> str:
+    """A table in a box that scrolls sideways if the table is wider than the page.  Numbers do not
+    wrap; text does.  ``row_ids``: an id per row (link targets), or None."""
     head = "".join(f"<th>{escape(str(h))}</th>" for h in header)
     body = []
-    for row in rows:
+    for k, row in enumerate(rows):
         cells = []
         for i, c in enumerate(row):
             cls = []
-            if header[i] in NUMERIC:
+            if header[i] in NUMERIC or str(header[i]).startswith("dt = "):
                 cls.append("num")
+            if header[i] in LABEL_COLUMNS:
+                cls.append("label")
             if i == status_col or str(c) in (Status.DIVERGED, Status.FAILED, Status.SKIPPED):
                 cls.append(str(c))
             attr = f' class="{" ".join(cls)}"' if cls else ""
-            cells.append(f"<td{attr}>{escape(str(c))}</td>")
-        body.append("<tr>" + "".join(cells) + "</tr>")
-    html = f'<div class="scroll"><table{" class=wrap" if wrap else ""}><thead><tr>{head}</tr></thead><tbody>{"".join(body)}</tbody></table></div>'
+            cells.append(f"<td{attr}>{_cell(c)}</td>")
+        ident = row_ids[k] if row_ids else None
+        body.append(f'<tr{f" id={chr(34)}{escape(ident)}{chr(34)}" if ident else ""}>' + "".join(cells) + "</tr>")
+    html = (f'<div class="scroll"><table{" class=wrap" if wrap else ""}><thead><tr>{head}</tr></thead>'
+            f'<tbody>{"".join(body)}</tbody></table></div>')
     if fold and len(rows) > FOLD_ROWS:
         html = f"<details><summary>{escape(fold)} ({len(rows)} rows)</summary>{html}</details>"
     return html
 
 
 def anchor(case: str) -> str:
-    return "case-" + "".join(ch if ch.isalnum() or ch in "-_" else "-" for ch in case)
+    return rd.case_anchor(case)
 
 
 def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict, notes: dict,
                 out_dir: Path | None = None, source: str = "results.json",
-                pairs: dict[str, list] | None = None) -> str:
+                pairs: dict[str, list] | None = None, found: list[fd.Finding] | None = None,
+                comparison=None) -> str:
     """The whole report.html.  ``figures``: 'heatmap', 'convergence', 'speed' and (case, dt) -> PNG
-    bytes or None; ``notes``: case -> lines about runs that could not be drawn."""
+    bytes or None; ``notes``: case -> lines about runs that could not be drawn; ``found``: the
+    findings (computed here without trajectories when None); ``comparison``: a comparison with a
+    baseline (:func:`freebody.report.render.compare_with`), or None."""
     runs = doc.get("runs") or []
     cases = rd.by_case(runs)
+    if found is None:
+        found = fd.find(runs)
     p = _head_html(doc, runs, cases, source)
+    p += _findings_html(found, runs, comparison)
+    if comparison is not None:
+        p += _compare_html(comparison)
+    p += _verdict_html(runs, found)
     p += _overview_html(doc, runs, figures, convergence)
     for case, case_runs in cases.items():
         case_pairs = (pairs or {}).get(case)
@@ -83,12 +140,12 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
 
 
 def _head_html(doc: dict, runs: list[dict], cases: dict, source: str) -> list[str]:
-    """The page's head, title, provenance line, incomplete warning and case navigation."""
+    """The page's head, title, provenance line, incomplete warning and navigation."""
     counts = rd.status_counts(runs)
     p = []
     p.append("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
              "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-             f"<title>freebody report</title><style>{CSS}</style></head><body>")
+             f"<title>freebody report</title><style>{CSS}</style><script>{SCRIPT}</script></head><body>")
     p.append("<h1>freebody report</h1>")
     p.append(f'<p class="meta">results <code>{escape(source)}</code> (schema {escape(str(doc.get("schema_version")))}), '
              f'freebody {escape(str(doc.get("freebody_version", "?")))}, created {escape(str(doc.get("created", "?")))}'
@@ -96,45 +153,146 @@ def _head_html(doc: dict, runs: list[dict], cases: dict, source: str) -> list[st
              + ", ".join(f"{n} {s}" for s, n in counts.items()) + ")</p>")
     if doc.get("incomplete"):
         p.append('<p class="warn"><b>Incomplete:</b> the run was interrupted; only the finished runs are shown.</p>')
-    p.append("<nav><b>Cases:</b> " + " ".join(f'<a href="#{anchor(c)}">{escape(c)}</a>' for c in cases) + "</nav>")
+    p.append('<nav><b>Sections:</b> <a href="#findings">Findings</a> <a href="#verdict">Verdict per case</a> '
+             '<a href="#errors">Errors</a> <a href="#convergence">Convergence</a> <a href="#speed">Speed</a> '
+             '<a href="#settings">Settings</a> <a href="#conventions">Conventions</a><br><b>Cases:</b> '
+             + " ".join(f'<a href="#{anchor(c)}">{escape(c)}</a>' for c in cases) + "</nav>")
     return p
 
 
+def _links(links: list[tuple[str, str]]) -> str:
+    return ('<span class="links">' + "".join(f'<a href="#{escape(a)}">{escape(t)}</a>' for t, a in links)
+            + "</span>") if links else ""
+
+
+def _findings_html(found: list[fd.Finding], runs: list[dict], comparison) -> list[str]:
+    p = ['<h2 id="findings">Findings</h2>']
+    p.append(f'<p class="note">{escape(fd.counts_text(found))}. {escape(fd.FINDINGS_NOTE)}</p>')
+    items = []
+    if comparison is not None:
+        items.append('<li><span class="sev sev-baseline">baseline</span> compare verdict: '
+                     f'{escape(md.verdict_line(comparison))} {_links([("comparison", "compare")])}</li>')
+    keyed = md.runs_by_key(runs)
+    for line in fd.summarize(found):
+        lead, parts = md.finding_line_parts(line, keyed)
+        f0 = line.items[0]
+        head = (f'<span class="sev sev-{escape(line.severity)}">{escape(line.severity)}</span> '
+                f'{escape(f0.title)}: <b>{escape(line.label)}</b>')
+        if len(parts) == 1:
+            text, links = parts[0]
+            items.append(f"<li>{head} {escape(text)} {_links(links)}</li>")
+        else:
+            sub = "".join(f"<li>{escape(text)} {_links(links)}</li>" for text, links in parts)
+            items.append(f"<li>{head} on {len(parts)} runs (from {escape(f0.source)}): "
+                         f"<details><summary>the runs</summary><ul>{sub}</ul></details></li>")
+    if items:
+        p.append('<ul class="findings">' + "".join(items) + "</ul>")
+    if not found:
+        p.append(f"<p>{escape(fd.NO_FINDINGS)}</p>")
+    return p
+
+
+def _compare_html(comparison) -> list[str]:
+    p = ['<h2 id="compare">Compare with baseline</h2>',
+         f"<p><code>{escape(comparison.sources[0])}</code> against this run: "
+         f"<b>{escape(md.verdict_line(comparison))}</b></p>"]
+    changed = [(e, b, c) for e, b, c in comparison.versions if b != c]
+    if changed:
+        p.append(table(("", "baseline", "this run"), changed))
+    if comparison.groups:
+        p.append("<ul>" + "".join(f"<li>{escape(g['text'])}</li>" for g in comparison.groups) + "</ul>")
+    rows = md.compare_rows(comparison)
+    if rows:
+        p.append(table(md.COMPARE_COLUMNS, rows[:md.COMPARE_ROWS], fold="the changes"))
+        if len(rows) > md.COMPARE_ROWS:
+            p.append(f'<p class="note">{len(rows) - md.COMPARE_ROWS} more changes: <code>freebody compare '
+                     f'{escape(comparison.sources[0])} RESULTS --all</code>.</p>')
+    return p
+
+
+def _run_link(run: dict, text: str) -> str:
+    return f'<a href="#{escape(rd.run_anchor(run))}">{escape(text)}</a>'
+
+
+def _runs_text(n: int) -> str:
+    return f"{n} engine run{'' if n == 1 else 's'}"
+
+
+def _verdict_html(runs: list[dict], found: list[fd.Finding]) -> list[str]:
+    """Per case, the scheme groups (folded; open where the case has a finding) and the
+    differences between groups, attributed to the schemes."""
+    p = ['<h2 id="verdict">Verdict per case</h2>']
+    cases = rd.by_case(runs)
+    flagged = {f.case for f in found if f.severity in ("error", "warning")}
+    body = []
+    for case, case_runs in cases.items():
+        groups = fd.scheme_groups(case_runs)
+        if not groups:
+            continue
+        rows = []
+        for g in groups:
+            name = Html(f'<span title="{escape(g.tie_text)}">{escape(g.name)}</span>')
+            for dt in g.dts():
+                members = Html("; ".join(f"{_run_link(m.run, m.label)} {escape(fd.member_text(m))}"
+                                         for m in g.at(dt)))
+                rows.append((name, f"{dt:g}", members, fd.group_error(g, dt)))
+        html = table(md.VERDICT_COLUMNS, rows)
+        columns, between = fd.between_table(groups)
+        if between:
+            html += table(columns, between)
+        summary = (f"{escape(case)}: {len(groups)} group{'s' if len(groups) > 1 else ''} ("
+                   + "; ".join(f"{escape(g.name)}: {_runs_text(len({m.label for m in g.members}))}" for g in groups)
+                   + ")" + (" · finding" if case in flagged else ""))
+        body.append(f'<details class="case"{" open" if case in flagged else ""}><summary>{summary}</summary>'
+                    f'{html}<p class="note"><a href="#{anchor(case)}">the case\'s runs and plots</a></p></details>')
+    if not body:
+        p.append('<p class="note">No engine run was judged against the reference maps (only the reference '
+                 "engine ran, or no engine run was ok).</p>")
+        return p
+    p.append(f'<p class="note">{escape(fd.VERDICT_NOTE)} {escape(fd.BETWEEN_NOTE)} Cases with a finding are '
+             "open; click a case to open the others.</p>")
+    return p + body
+
+
 def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list[dict] | None = None) -> list[str]:
-    """The sections over all cases: engines, heat map, convergence, speed, forced settings,
-    reproduced reference maps, ported engines."""
+    """The sections over all cases: engines, heat maps, convergence, speed, forced settings,
+    reproduced reference maps, ported engines, conventions."""
     p = []
     p.append("<h2>Engines</h2>" + table(("engine", "version", "runs"), rd.engine_versions(doc)))
     versions = side_by_side(doc)
     if versions:
         p.append("<h2>Engine versions side by side</h2>"
                  f'<p class="note">{escape(VERSIONS_NOTE)}</p>' + table(*version_table(versions)))
-    p.append("<h2>Worst orientation error per case and engine run</h2>"
-             '<p class="note">Colour: the largest orientation error (rad, log scale) over time and over the '
-             "time steps of the cell's ok runs. Dark: a run diverged; red: a run failed; grey: skipped.</p>")
+    p.append('<h2 id="errors">Orientation error per case, engine run and time step</h2>'
+             '<p class="note">One panel per time step (a maximum over time steps would show the coarsest '
+             "only), one colour scale for all: the orientation error max (rad, log scale) of each run. "
+             "Dark: the run diverged; red: failed; grey: skipped; white: not run at that time step. "
+             "The column labels are repeated above the first panel and below the last.</p>")
     p.append(img(figures.get("heatmap"), "heat map"))
-    p.append("<h2>Convergence</h2>"
+    p.append('<h2 id="convergence">Convergence</h2>'
              '<p class="note">Error against time step (log-log) for the cases run at 3 or more time steps '
              "(else at 2); dotted: the least-squares fit; the legend gives "
              "the observed order p for the orientation and the energy error (sat.: the errors saturate, "
-             "at order pi or at the truth's accuracy floor, so no order is meaningful).</p>")
+             "at order pi or at the truth's accuracy floor, so no order is meaningful). Colour: the engine "
+             "(colour-blind safe, black: the reference engine); line style and marker: its integrator.</p>")
     p.append(img(figures.get("convergence"), "convergence"))
     columns, rows = rd.observed_orders(convergence or [], runs)
     if rows:
         p.append("<h3>Observed order of convergence per engine run</h3>"
                  f'<p class="note">{escape(md.ORDER_NOTE)}</p>' + table(columns, rows))
-    p.append("<h2>Speed and accuracy</h2>"
+    p.append('<h2 id="speed">Speed and accuracy</h2>'
              '<p class="note">Orientation error against wall-clock time per simulated second, one point per '
-             "time step (lower left is better).</p>")
+             "time step (lower left is better); the legend at the right of the first row.</p>")
     p.append(img(figures.get("speed"), "speed-accuracy"))
     forced = rd.settings_forced(runs)
-    p.append("<h2>Settings the adapters forced</h2>" + (
+    note = rd.settings_note(runs)
+    p.append('<h2 id="settings">Settings the adapters forced</h2>' + (
         table(("engine", "setting", "engine default", "set to"), forced) if forced
-        else '<p class="note">No adapter changed an engine default.</p>'))
+        else '<p class="note">No adapter changed an engine default.</p>')
+        + (f'<p class="note">{escape(note)}</p>' if note else ""))
     repro = rd.reproduction_summary(runs)
     p.append("<h2>Reference map each engine run reproduces</h2>" + (
-        table(("engine run", "reproduces", "runs", "max difference (rad)"),
-              [(a, b, n, rd.num(max_diff, ".1e")) for a, b, n, max_diff in repro]) if repro
+        table(rd.REPRODUCTION_COLUMNS, [(*row[:4], rd.num(row[4], ".1e")) for row in repro]) if repro
         else '<p class="note">No engine run was compared with the reference maps.</p>'))
     ports = rd.port_comparison(runs)
     if ports:
@@ -142,23 +300,31 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
                  + table(rd.PORT_COLUMNS, ports))
     conventions = rd.engine_conventions(doc)
     if conventions:
-        p.append("<h2>Engine conventions and traps</h2>"
-                 f'<p class="note">{escape(rd.CONVENTIONS_NOTE)}</p>'
-                 + table(("engine", "convention", "what the adapter does"), conventions,
-                         fold="the conventions of each engine", wrap=True))
+        p.append('<h2 id="conventions">Engine conventions and traps</h2>'
+                 f'<p class="note">{escape(rd.CONVENTIONS_NOTE)}</p>')
+        by_engine: dict[str, list] = {}
+        for engine, key, text in conventions:
+            by_engine.setdefault(engine, []).append((key, text))
+        for engine, rows in by_engine.items():
+            p.append(f'<details id="{escape(rd.conventions_anchor(engine))}"><summary>{escape(engine)} '
+                     f"({len(rows)} conventions)</summary>"
+                     + table(("convention", "what the adapter does"), rows, wrap=True) + "</details>")
     return p
 
 
 def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], case_pairs: list | None,
                figures: dict, case_notes: list[str], out_dir: Path | None) -> list[str]:
-    """One case's section: description, runs, what was not ok, observed orders, engine-vs-engine
-    differences at the end (``case_pairs``, computed here when None) and the per-dt figures.
-    ``ph``: the case's rd.CasePhysics, or None."""
+    """One case's section: description, runs (a row id per run), what was not ok, observed
+    orders, engine-vs-engine differences at the end (``case_pairs``, computed here when None) and
+    the per-dt figures (an id per figure).  ``ph``: the case's rd.CasePhysics, or None."""
     p = []
     p.append(f'<h2 id="{anchor(case)}">Case <code>{escape(case)}</code></h2>')
     if ph is not None:
         p.append(f"<p>{escape(ph.description)}</p><p class=\"note\">Truth: {escape(ph.truth or '?')}.</p>")
-    p.append("<h3>Runs</h3>" + table(*md.run_table(case_runs), status_col=2))
+    order = {lab: i for i, lab in enumerate(rd.labels(case_runs))}
+    ordered = sorted(case_runs, key=lambda r: (order[rd.label(r)], -float(r["dt"])))
+    p.append("<h3>Runs</h3>" + table(*md.run_table(case_runs), status_col=2,
+                                     row_ids=[rd.run_anchor(r) for r in ordered]))
     bad = [r for r in case_runs if r.get("status") != Status.OK]
     if bad:
         items = dict.fromkeys(f"{rd.label(r)} dt = {float(r['dt']):g} s: {r.get('status')}: "
@@ -172,20 +338,18 @@ def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], ca
         case_pairs = rd.pairwise(case_runs, ph, out_dir)
     p.append("<h3>Engines at the end</h3>")
     if case_pairs:
-        p.append('<p class="note">Final states of runs of different engines: orientation angle, '
-                 "|L<sub>a</sub> - L<sub>b</sub>| / mean |L|, |E<sub>a</sub> - E<sub>b</sub>| / mean KE; "
-                 "largest angle first.</p>")
+        p.append(f'<p class="note">{escape(md.PAIRS_NOTE)}</p>')
         if ph is None:
             p.append('<p class="note">L and E need the case\'s mass and inertia, not in this results.json '
                      "(pass <code>--case PATH</code> to <code>freebody report</code>).</p>")
-        p.append(table(("dt (s)", "run A", "run B", "orientation (rad)", "L (rel)", "E (rel)"),
-                       [(f"{q.dt:g}", q.a, q.b, rd.num(q.angle_rad), rd.num(q.dL_rel), rd.num(q.dE_rel))
-                        for q in case_pairs], fold="engine-vs-engine differences"))
+        p.append(table(md.PAIR_COLUMNS, md.pair_rows(case_pairs), fold="engine-vs-engine differences"))
     else:
         p.append('<p class="note">No two engines both finished a run of this case at the same time step.</p>')
-    p.append("<h3>Errors and angular velocity against time</h3>")
+    p.append("<h3>Errors and angular velocity against time</h3>"
+             '<p class="note">Colour: the engine (black: the reference engine); line style and marker: its '
+             "integrator; the legend at the right.</p>")
     for dt in rd.dts(case_runs):
-        p.append(img(figures.get((case, dt)), f"{case} dt={dt:g}"))
+        p.append(img(figures.get((case, dt)), f"{case} dt={dt:g}", rd.figure_anchor(case, dt)))
     for line in case_notes:
         p.append(f'<p class="note">{escape(line)}</p>')
     return p

@@ -1,5 +1,9 @@
 """report.md: the report's tables as Markdown (the plots are in report.html).
 
+It opens on the verdict (:mod:`.findings`): the findings, the comparison with a baseline when one
+is given, and per case the engine runs grouped by the reference map they reproduce; then the
+overview tables and one section per case.
+
 Numbers are printed with fixed formats (%.3e for errors, %.2f for orders), so the text is stable
 under last-digit noise and can be compared with golden files.
 """
@@ -8,6 +12,9 @@ from __future__ import annotations
 from pathlib import Path
 
 from . import data as rd
+from . import findings as fd
+from ..adapters.base import REFERENCE_ENGINE
+from ..numbers import finite_or_none
 from ..results.versions import VERSIONS_NOTE, side_by_side, version_table
 from ..run.convergence import SHORT_NAMES
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL,
@@ -97,7 +104,7 @@ def not_ok_lines(runs: list[dict]) -> list[str]:
     return list(dict.fromkeys(out))
 
 
-def front_matter(doc: dict, source: str) -> list[str]:
+def header_lines(doc: dict, source: str) -> list[str]:
     runs = doc.get("runs") or []
     counts = rd.status_counts(runs)
     out = ["# freebody report", "",
@@ -108,32 +115,175 @@ def front_matter(doc: dict, source: str) -> list[str]:
            "- plots: `report.html` (this file holds the tables)", ""]
     if doc.get("incomplete"):
         out += ["> **Incomplete:** the run was interrupted; only the finished runs are shown.", ""]
-    out += ["## Engines", "", md_table(("engine", "version", "runs"), rd.engine_versions(doc)), ""]
+    return out
+
+
+def finding_links(f: fd.Finding, runs_by_key: dict) -> list[tuple[str, str]]:
+    """(text, anchor in report.html) of a finding: the run's plots (its case's figure at its dt), its
+    row in the Runs table, its engine's conventions."""
+    out = []
+    run = runs_by_key.get((f.case, f.label, f.dt))
+    if run is not None:
+        if run.get("trajectory") and run.get("status") in (Status.OK, Status.DIVERGED):
+            out.append(("plots", rd.figure_anchor(f.case, f.dt)))
+        out.append(("run", rd.run_anchor(run)))
+    if f.kind in fd.CONVENTION_KINDS and f.engine and f.engine != REFERENCE_ENGINE:
+        out.append((f"{f.engine} conventions", rd.conventions_anchor(f.engine)))
+    return out
+
+
+def runs_by_key(runs: list[dict]) -> dict:
+    """(case, label, dt) -> run: how a finding finds its run."""
+    return {(r["case"], rd.label(r), float(r["dt"])): r for r in runs if finite_or_none(r.get("dt")) is not None}
+
+
+def finding_line_parts(line: fd.FindingLine, keyed: dict) -> tuple[str, list[tuple[str, list]]]:
+    """(the line's lead: 'severity · title · run', [(one item's text, its links)]) of a findings line."""
+    f0 = line.items[0]
+    lead = f"{line.severity} · {f0.title} · {line.label}"
+    items = []
+    for f in line.items:
+        if len(line.items) == 1:
+            text = " ".join(x for x in (fd.where(f) + ":" if fd.where(f) else "", f.text) if x)
+            first = "" if f.t_s is None or "t = " in f.text else f"first at t = {f.t_s:.4g} s; "
+            text += f" ({first}from {f.source})"
+        else:
+            nums = fd.numbers(f)
+            text = fd.where(f) + (f" ({nums})" if nums else "")
+        items.append((text, finding_links(f, keyed)))
+    return lead, items
+
+
+def findings_lines(found: list[fd.Finding], runs: list[dict], comparison=None) -> list[str]:
+    out = ["## Findings", "", fd.FINDINGS_NOTE, ""]
+    if comparison is not None:
+        out += [f"- **baseline** · compare verdict · {verdict_line(comparison)} (see Compare with baseline)"]
+    if not found:
+        return out + ([""] if comparison is not None else []) + [fd.NO_FINDINGS, ""]
+    out[2:2] = [fd.counts_text(found) + ".", ""]
+    keyed = runs_by_key(runs)
+    for line in fd.summarize(found):
+        lead, items = finding_line_parts(line, keyed)
+        f0 = line.items[0]
+        if len(items) == 1:
+            text, links = items[0]
+            out.append(f"- **{lead}**: {text}" + _md_links(links))
+        else:
+            out.append(f"- **{lead}** on {len(items)} runs (from {f0.source}): "
+                       + "; ".join(text + _md_links(links) for text, links in items))
+    return out + [""]
+
+
+def _md_links(links: list[tuple[str, str]]) -> str:
+    return (" [" + ", ".join(f"[{t}](report.html#{a})" for t, a in links) + "]") if links else ""
+
+
+def verdict_line(comparison) -> str:
+    """The one-line verdict of a comparison with a baseline (the last line of ``freebody compare``)."""
+    lines = comparison.table().splitlines()
+    return next((ln for ln in reversed(lines) if ln.startswith(("OK:", "REGRESSION:"))), lines[-1])
+
+
+COMPARE_COLUMNS = ("run", "dt", "what", "baseline", "current", "limit", "verdict", "note")
+COMPARE_ROWS = 40  # changes shown; the rest: freebody compare
+
+
+def compare_rows(comparison) -> list[tuple]:
+    """The changes of a comparison (failing first), as ``freebody compare`` lists them."""
+    from ..results.verdict import _cell, _dt, _sorted
+
+    return [(c.label, _dt(c), c.what, _cell(c.baseline), _cell(c.current), _cell(c.limit),
+             c.verdict.upper() if c.fails(comparison.strict) else c.verdict, c.note)
+            for c in _sorted([c for c in comparison.changes if c.verdict != "same"])]
+
+
+def compare_lines(comparison) -> list[str]:
+    """The "Compare with baseline" section (``freebody compare BASELINE RESULTS``)."""
+    out = ["## Compare with baseline", "", f"`{comparison.sources[0]}` against this run: **{verdict_line(comparison)}**",
+           ""]
+    changed = [(e, b, c) for e, b, c in comparison.versions if b != c]
+    if changed:
+        out += [md_table(("", "baseline", "this run"), changed), ""]
+    out += [f"- {g['text']}" for g in comparison.groups] + ([""] if comparison.groups else [])
+    rows = compare_rows(comparison)
+    if rows:
+        out += [md_table(COMPARE_COLUMNS, rows[:COMPARE_ROWS]), ""]
+        if len(rows) > COMPARE_ROWS:
+            out += [f"{len(rows) - COMPARE_ROWS} more changes: `freebody compare {comparison.sources[0]} "
+                    f"RESULTS --all`.", ""]
+    return out
+
+
+def verdict_case_lines(case: str, case_runs: list[dict]) -> list[str]:
+    """One case's scheme groups and the differences between them (nothing without a judged run)."""
+    groups = fd.scheme_groups(case_runs)
+    if not groups:
+        return []
+    rows = []
+    for g in groups:
+        for dt in g.dts():
+            rows.append((g.name, f"{dt:g}", "; ".join(f"{m.label} {fd.member_text(m)}" for m in g.at(dt)),
+                         fd.group_error(g, dt)))
+    out = [f"### `{case}`", "", md_table(VERDICT_COLUMNS, rows), ""]
+    columns, between = fd.between_table(groups)
+    if between:
+        out += [md_table(columns, between), ""]
+    return out
+
+
+VERDICT_COLUMNS = ("reproduces", "dt (s)", "engine runs: distance to the map (rad) (r: / round-off level)",
+                   "orientation error max (rad)")
+
+
+def verdict_lines(runs: list[dict]) -> list[str]:
+    body = []
+    for case, case_runs in rd.by_case(runs).items():
+        body += verdict_case_lines(case, case_runs)
+    if not body:
+        return ["## Verdict per case", "", "No engine run was judged against the reference maps (only the "
+                "reference engine ran, or no engine run was ok).", ""]
+    return ["## Verdict per case", "", fd.VERDICT_NOTE, "", fd.BETWEEN_NOTE, "", *body]
+
+
+ERROR_TABLES_NOTE = ("One table per time step (a maximum over time steps would show the coarsest only); "
+                     "a status word instead of a number: the run was not ok.")
+
+
+def error_table_lines(runs: list[dict]) -> list[str]:
+    out = ["## Orientation error max (rad) per case, engine run and time step", "", ERROR_TABLES_NOTE, ""]
+    by_dt = rd.error_cells(runs)
+    if not by_dt:
+        return out + ["No runs.", ""]
+    cases = list(rd.by_case(runs))
+    for dt, cells in by_dt.items():
+        cs = [c for c in cases if any(k[0] == c for k in cells)]
+        labs = [lab for lab in rd.labels(runs) if any(k[1] == lab for k in cells)]
+        rows = []
+        for lab in labs:
+            row = [lab]
+            for c in cs:
+                status, v = cells.get((c, lab), ("", None))
+                row.append("" if not status else (rd.num(v) if status == Status.OK else status))
+            rows.append(row)
+        out += [f"### dt = {dt:g} s", "", md_table(["engine run", *cs], rows), ""]
+    return out
+
+
+def overview_lines(doc: dict) -> list[str]:
+    runs = doc.get("runs") or []
+    out = ["## Engines", "", md_table(("engine", "version", "runs"), rd.engine_versions(doc)), ""]
     versions = side_by_side(doc)
     if versions:
         out += ["## Engine versions side by side", "", VERSIONS_NOTE, "", md_table(*version_table(versions)), ""]
-
-    cases = list(rd.by_case(runs))
-    cells = rd.worst_cells(runs)
-    out += ["## Worst orientation error (rad, max over time and time steps)", "",
-            "A status word instead of a number: at least one of the cell's runs was not ok.", ""]
-    rows = []
-    for lab in rd.labels(runs):
-        row = [lab]
-        for c in cases:
-            status, v = cells.get((c, lab), ("", None))
-            row.append("" if not status else (rd.num(v) if status == Status.OK else status))
-        rows.append(row)
-    out += [md_table(["engine run", *cases], rows) if rows else "No runs.", ""]
-
+    out += error_table_lines(runs)
     forced = rd.settings_forced(runs)
+    note = rd.settings_note(runs)
     out += ["## Settings the adapters forced", "",
             md_table(("engine", "setting", "engine default", "set to"), forced) if forced
-            else "No adapter changed an engine default.", ""]
+            else "No adapter changed an engine default.", ""] + ([note, ""] if note else [])
     repro = rd.reproduction_summary(runs)
     out += ["## Reference map each engine run reproduces", "",
-            md_table(("engine run", "reproduces", "runs", "max difference (rad)"),
-                     [(a, b, n, rd.num(d, ".1e")) for a, b, n, d in repro]) if repro
+            md_table(rd.REPRODUCTION_COLUMNS, [(*row[:4], rd.num(row[4], ".1e")) for row in repro]) if repro
             else "No engine run was compared with the reference maps (only the reference engine ran, "
                  "or no engine run was ok).", ""]
     ports = rd.port_comparison(runs)
@@ -145,6 +295,18 @@ def front_matter(doc: dict, source: str) -> list[str]:
         out += ["## Engine conventions and traps", "", rd.CONVENTIONS_NOTE, "",
                 md_table(("engine", "convention", "what the adapter does"), conventions), ""]
     return out
+
+
+def front_matter(doc: dict, source: str, found: list[fd.Finding] | None = None, comparison=None) -> list[str]:
+    """The report's first part: header, findings, comparison with a baseline, the verdict per case,
+    then the overview tables."""
+    runs = doc.get("runs") or []
+    if found is None:
+        found = fd.find(runs)
+    out = header_lines(doc, source) + findings_lines(found, runs, comparison)
+    if comparison is not None:
+        out += compare_lines(comparison)
+    return out + verdict_lines(runs) + overview_lines(doc)
 
 
 def case_section(case: str, runs: list[dict], convergence: list[dict],
@@ -170,22 +332,33 @@ def case_section(case: str, runs: list[dict], convergence: list[dict],
         if physics is None:
             out += ["L and E differences need the case's mass and inertia, which this results.json "
                     "does not hold (pass `--case PATH` to `freebody report`).", ""]
-        out += ["Differences between the final states of runs of different engines, largest first: "
-                "orientation angle, |L_a - L_b| / mean |L|, |E_a - E_b| / mean KE.", "",
-                md_table(("dt (s)", "run A", "run B", "orientation (rad)", "L (rel)", "E (rel)"),
-                         [(f"{p.dt:g}", p.a, p.b, rd.num(p.angle_rad), rd.num(p.dL_rel), rd.num(p.dE_rel))
-                          for p in pairs]), ""]
+        out += [PAIRS_NOTE, "", md_table(PAIR_COLUMNS, pair_rows(pairs)), ""]
     else:
         out += ["No two engines both finished a run of this case at the same time step.", ""]
     return out
 
 
+PAIRS_NOTE = ("Differences between the final states of runs of different engines: orientation angle, "
+              "|L_a - L_b| / mean |L|, |E_a - E_b| / mean KE.  Per dt, the pairs that reproduce the same "
+              "reference map first (a difference there beyond round-off is an engine's), then those that "
+              "differ by scheme; largest angle first.")
+PAIR_COLUMNS = ("dt (s)", "run A", "run B", "orientation (rad)", "L (rel)", "E (rel)", "relation")
+
+
+def pair_rows(pairs: list[rd.Pair]) -> list[tuple]:
+    return [(f"{p.dt:g}", p.a, p.b, rd.num(p.angle_rad), rd.num(p.dL_rel), rd.num(p.dE_rel), p.relation or "-")
+            for p in pairs]
+
+
 def render_markdown(doc: dict, convergence: list[dict], physics: dict[str, rd.CasePhysics | None],
                     out_dir: Path | None = None, source: str = "results.json",
-                    pairs: dict[str, list[rd.Pair]] | None = None) -> str:
+                    pairs: dict[str, list[rd.Pair]] | None = None, found: list[fd.Finding] | None = None,
+                    comparison=None) -> str:
     """The whole report.md text.  ``physics``: case name -> CasePhysics (or None); ``pairs``: case
-    name -> :func:`report_data.pairwise` (computed here when not given)."""
-    lines = front_matter(doc, source) + observed_order_lines(convergence, doc.get("runs") or [])
+    name -> :func:`report_data.pairwise` (computed here when not given); ``found``: the findings
+    (:func:`freebody.report.findings.find`, computed here without trajectories when not given);
+    ``comparison``: a :class:`freebody.results.compare.Comparison` with a baseline, or None."""
+    lines = front_matter(doc, source, found, comparison) + observed_order_lines(convergence, doc.get("runs") or [])
     for case, runs in rd.by_case(doc.get("runs") or []).items():
         lines += case_section(case, runs, convergence, physics.get(case), out_dir, (pairs or {}).get(case))
     return "\n".join(lines).rstrip() + "\n"

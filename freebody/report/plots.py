@@ -11,6 +11,11 @@ draws what all N draw and keeps every maximum and the last sample before a diver
 a figure share one truth, read and reduced once (:class:`freebody.report.data.SeriesReader`);
 titles are placed without measuring the axes; PNGs are encoded as RGB; and :func:`render_figures`
 draws the figures in parallel processes when there are many (docs/reports.md, "Speed").
+
+Readability: one colour per engine (Okabe-Ito, colour-blind safe; the reference engine black), a
+line style and marker per integrator (:func:`styles`), legends next to the panels they explain,
+and every text inside its figure: :func:`png_bytes` grows a figure whose labels overflow it and
+fails (under pytest) on a text that still does (:func:`text_overflow`, :class:`ClippedText`).
 """
 from __future__ import annotations
 
@@ -35,10 +40,16 @@ SERIAL_FIGURES = 8
 # drawing every sample (measured on a 200 000-sample random walk: 8 % -> 5 % of the line's
 # pixels by more than a quarter of the grey range; 36 % with the 800-sample stride used before).
 ENVELOPE_PER_PIXEL = 2
+CASE_PANELS_W_IN, CASE_PANELS_H_IN = 9.6, 6.0  # a per-case figure's four panels (its legend at the right)
+CASE_MARKS = 8  # markers on a time series: this many, evenly spaced in time
+CASE_LINE_WIDTH_PT = 72 / DPI  # one pixel
 LOG_PANEL_TOP = 1e3  # error panels stop here: beyond, a run has blown up (its status says so)
 STATUS_COLOURS = {Status.DIVERGED: "#222222", Status.FAILED: "#b2182b", Status.SKIPPED: "#d9d9d9"}
 STATUS_TEXT = {Status.DIVERGED: "div", Status.FAILED: "fail", Status.SKIPPED: "skip"}
-TRUTH_STYLE = dict(color="black", linestyle="--", linewidth=1.2)
+# A text may reach this far (pixels) beyond the figure's edge: anti-aliasing of a glyph's edge.
+TEXT_SLACK_PX = 0.5
+# Room (pixels) left beyond an overflowing text when the figure is grown to hold it.
+TEXT_FIT_PAD_PX = 4.0
 
 
 def _figure(width_in: float, height_in: float):
@@ -54,15 +65,114 @@ def _figure(width_in: float, height_in: float):
 PNG_COLOURS = 256
 
 
+class ClippedText(AssertionError):
+    """A figure's text extends beyond the figure (a label cut at its edge), even after the figure
+    was grown to hold it (:func:`fit_texts`)."""
+
+
+def _drawn_texts(fig) -> list:
+    """The visible, non-empty text artists a drawn figure shows: titles, axis labels, the tick
+    labels drawn (those inside the view limits), texts, legends (of axes and of the figure)."""
+    from matplotlib.text import Text
+
+    out = list(fig.texts)
+    legends = list(fig.legends)
+    for ax in [a for parent in fig.axes for a in (parent, *parent.child_axes)]:
+        if not ax.get_visible():
+            continue
+        out += [ax.title, ax._left_title, ax._right_title, *ax.texts]
+        for axis in (ax.xaxis, ax.yaxis):
+            if not axis.get_visible():
+                continue
+            out += [axis.label, axis.get_offset_text()]
+            for tick in axis._update_ticks():  # the ticks drawn: inside the view limits
+                out += [tick.label1 if tick.label1.get_visible() else None,
+                        tick.label2 if tick.label2.get_visible() else None]
+        if ax.get_legend() is not None:
+            legends.append(ax.get_legend())
+    for lg in legends:
+        if lg.get_visible():
+            out += [*lg.get_texts(), lg.get_title()]
+    return [t for t in out if isinstance(t, Text) and t.get_visible() and t.get_text().strip()]
+
+
+def text_overflow(fig, renderer=None) -> tuple[tuple[float, float, float, float], list[str]]:
+    """((left, bottom, right, top) pixels by which the drawn figure's texts extend beyond it, the
+    texts that do) after ``fig.canvas.draw()``; zeros and [] when every text is inside."""
+    renderer = renderer or fig.canvas.get_renderer()
+    W, H = fig.bbox.width, fig.bbox.height
+    over = [0.0, 0.0, 0.0, 0.0]
+    names = []
+    for t in _drawn_texts(fig):
+        bb = t.get_window_extent(renderer)
+        if not (np.isfinite(bb.x0) and np.isfinite(bb.y1)):
+            continue
+        sides = (-bb.x0, -bb.y0, bb.x1 - W, bb.y1 - H)
+        if max(sides) > TEXT_SLACK_PX:
+            names.append(t.get_text()[:60])
+            over = [max(o, sd) for o, sd in zip(over, sides)]
+    return tuple(over), names
+
+
+def clipped_texts(fig) -> list[str]:
+    """The texts of a figure (drawn here on the Agg canvas) that extend beyond it: [] when none."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    return text_overflow(fig, canvas.get_renderer())[1]
+
+
+def fit_texts(fig, canvas):
+    """Grow a drawn figure by the margins its texts overflow (long tick labels, a legend), keeping
+    every axes' size in inches and moving it inwards; redraw.  Returns (the canvas to read, the
+    texts still beyond the figure: [] unless growing did not help)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    for _ in range(3):
+        (left, bottom, right, top), names = text_overflow(fig, canvas.get_renderer())
+        if not names:
+            return canvas, []
+        dpi = fig.dpi
+        pad = TEXT_FIT_PAD_PX
+        grow = [(v + pad) / dpi if v > TEXT_SLACK_PX else 0.0 for v in (left, bottom, right, top)]
+        w, h = fig.get_size_inches()
+        nw, nh = w + grow[0] + grow[2], h + grow[1] + grow[3]
+        for ax in fig.axes:
+            x0, y0, aw, ah = ax.get_position().bounds
+            ax.set_position(((x0 * w + grow[0]) / nw, (y0 * h + grow[1]) / nh, aw * w / nw, ah * h / nh))
+        fig.set_size_inches(nw, nh)
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()
+    return canvas, text_overflow(fig, canvas.get_renderer())[1]
+
+
+def strict_figures() -> bool:
+    """Whether a clipped text fails (under pytest, or FREEBODY_STRICT_FIGURES=1) or only warns."""
+    return os.environ.get("FREEBODY_STRICT_FIGURES") == "1" or "PYTEST_CURRENT_TEST" in os.environ
+
+
 def png_bytes(fig) -> bytes:
     """The figure as PNG: the pixels ``fig.savefig(format="png")`` draws at DPI, stored with a
     palette of PNG_COLOURS when the figure is opaque (a third of the RGB size), with no software
-    metadata (so the bytes depend on the data only)."""
+    metadata (so the bytes depend on the data only).
+
+    Every text must lie inside the figure: the figure is grown where one overflows
+    (:func:`fit_texts`); one that still does raises :class:`ClippedText` under pytest (or with
+    FREEBODY_STRICT_FIGURES=1), else warns."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image
 
     canvas = FigureCanvasAgg(fig)
     canvas.draw()
+    canvas, names = fit_texts(fig, canvas)
+    if names:
+        message = f"figure text cut at the figure's edge: {names}"
+        if strict_figures():
+            raise ClippedText(message)
+        import warnings
+
+        warnings.warn(message, stacklevel=2)
     rgba = np.asarray(canvas.buffer_rgba())
     if bool(np.all(rgba[..., 3] == 255)):
         image = Image.fromarray(np.ascontiguousarray(rgba[..., :3]), "RGB").quantize(
@@ -74,17 +184,55 @@ def png_bytes(fig) -> bytes:
     return buf.getvalue()
 
 
-def colours(labels: list[str]) -> dict[str, tuple]:
-    """A fixed colour per engine-run label (tab10 up to 10 labels, tab20 up to 20, then cycling)."""
-    from matplotlib import colormaps
+# --- colours and line styles ------------------------------------------------------------------------
 
-    cmap = colormaps["tab10" if len(labels) <= 10 else "tab20"]
-    n = cmap.N
-    return {lab: cmap(i % n) for i, lab in enumerate(labels)}
+# Okabe & Ito's colour-blind-safe qualitative palette (Color Universal Design, 2008), one colour
+# per engine; black is the reference engine's; yellow last (faint on white).
+OKABE_ITO = ("#E69F00", "#56B4E9", "#009E73", "#0072B2", "#D55E00", "#CC79A7", "#F0E442")
+REFERENCE_COLOUR = "#000000"
+LINESTYLES = ("-", "--", ":", "-.")
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "<", ">", "*", "h", "p")
+TRUTH_STYLE = dict(color="#bdbdbd", linestyle="-", linewidth=3.5, zorder=0.5)  # a wide grey band below
 
 
-def linestyle(i: int, n_colours: int) -> str:
-    return ("-", "--", ":", "-.")[(i // n_colours) % 4]
+def engine_of(lab: str) -> str:
+    return lab.split("/", 1)[0]
+
+
+def styles(labels: list[str]) -> dict[str, dict]:
+    """A line style per engine-run label: colour per engine (Okabe-Ito, the reference engine
+    black), line style and marker per integrator within its engine, in the labels' order."""
+    from ..adapters.base import REFERENCE_ENGINE
+
+    engines = list(dict.fromkeys(engine_of(lab) for lab in labels))
+    others = [e for e in engines if e != REFERENCE_ENGINE]
+    colour = {e: OKABE_ITO[i % len(OKABE_ITO)] for i, e in enumerate(others)}
+    colour[REFERENCE_ENGINE] = REFERENCE_COLOUR
+    seen: dict[str, int] = {}
+    out = {}
+    for lab in labels:
+        e = engine_of(lab)
+        k = seen[e] = seen.get(e, -1) + 1
+        out[lab] = dict(color=colour[e], linestyle=LINESTYLES[k % len(LINESTYLES)],
+                        marker=MARKERS[k % len(MARKERS)])
+    return out
+
+
+def _legend_right(fig, handles: dict, labs: list[str], top: float, title: str | None = None,
+                  fontsize: float = 7):
+    """A legend of the labels in one column at the figure's right edge, its top at ``top``
+    (figure fraction): next to the panels it explains."""
+    shown = [lab for lab in labs if lab in handles]
+    if not shown:
+        return None
+    return fig.legend([handles[lab] for lab in shown], shown, loc="upper right", bbox_to_anchor=(1.0, top),
+                      fontsize=fontsize, frameon=False, title=title, title_fontsize=fontsize,
+                      alignment="left", handlelength=3.2)
+
+
+def _legend_width_in(labs: list[str], fontsize: float = 7) -> float:
+    """The width (inches) of a one-column legend of these labels (handle and padding included)."""
+    return 0.0075 * fontsize * max((len(x) for x in labs), default=0) + 0.65
 
 
 def _finite_xy(x, y, log_y: bool = False, log_x: bool = False):
@@ -130,11 +278,6 @@ def _title(ax, text: str, **kw) -> None:
     ax.set_title(text, y=1.0, **kw)
 
 
-def _legend_in(n: int, ncol: int = 4) -> float:
-    """Height in inches of a figure legend of n entries in ncol columns at fontsize 7."""
-    return 0.17 * ((n + ncol - 1) // ncol) + 0.1
-
-
 def _log_axes(ax, x: bool = False, y: bool = False) -> None:
     """Log scale with labels on the decades only (minor tick labels are slow and crowded)."""
     from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
@@ -161,58 +304,87 @@ def _empty(ax, text: str) -> None:
 
 # --- front page -----------------------------------------------------------------------------------
 
+HEAT_ROW_IN = 0.27  # height of a heat-map row (inches)
+HEAT_COLUMN_IN = 0.5  # width of a heat-map column (inches)
+
+
 def heatmap(runs: list[dict]) -> bytes | None:
-    """Cases (rows) x engine runs (columns), coloured by the worst orientation error (log scale);
-    diverged, failed and skipped cells in their own colours with a word."""
+    """The orientation error max of every run: one panel per time step (coarsest first), cases
+    (rows, those run at that dt) x engine runs (columns, the same in every panel), one log colour
+    scale for all panels; diverged, failed and skipped cells in their own colours with a word.
+    The column labels are written above the first panel and below the last."""
     from matplotlib.colors import LogNorm
 
+    by_dt = rd.error_cells(runs)
     cases = list(rd.by_case(runs))
     labs = rd.labels(runs)
-    if not cases or not labs:
+    if not by_dt or not labs:
         return None
-    cells = rd.worst_cells(runs)
-    data = np.full((len(cases), len(labs)), np.nan)
-    for (c, lab), (status, v) in cells.items():
-        if status == Status.OK and v is not None:
-            data[cases.index(c), labs.index(lab)] = max(v, 1e-16)
-    label_in = 0.045 * max(map(len, labs)) * 0.87 + 0.3  # rotated tick labels, inches
-    case_in = 0.07 * max(map(len, cases)) + 0.3
-    w, h = max(5.0, case_in + 1.6 + 0.62 * len(labs)), 0.8 + 0.42 * len(cases) + label_in
-    fig = _figure(w, h)
-    ax = fig.add_axes((case_in / w, label_in / h, 1 - (case_in + 1.5) / w, 1 - (label_in + 0.45) / h))
-    finite = data[np.isfinite(data)]
-    cmap = None
-    if finite.size:
-        from matplotlib import colormaps
+    panels = [(dt, [c for c in cases if any((c, lab) in cells for lab in labs)]) for dt, cells in by_dt.items()]
+    values = [v for cells in by_dt.values() for status, v in cells.values() if status == Status.OK and v is not None]
+    finite = np.maximum(np.asarray(values, dtype=float), 1e-16)
+    norm = None
+    from matplotlib import colormaps
 
-        cmap = colormaps["viridis"].with_extremes(bad="white")
+    cmap = colormaps["viridis"].with_extremes(bad="white")
+    if finite.size:
         lo, hi = float(finite.min()), float(finite.max())
         norm = LogNorm(vmin=lo, vmax=hi if hi > lo else lo * 10)
-        im = ax.imshow(np.ma.masked_invalid(data), cmap=cmap, norm=norm, aspect="auto")
-        cax = fig.add_axes((1 - 1.3 / w, label_in / h, 0.15 / w, 1 - (label_in + 0.45) / h))
+    label_in = 0.055 * max(map(len, labs)) * 0.87 + 0.15  # rotated column labels (60 degrees)
+    case_in = 0.075 * max(map(len, cases)) + 0.25
+    title_in, gap_in = 0.3, 0.15
+    rows_in = [HEAT_ROW_IN * len(cs) for _, cs in panels]
+    w = case_in + HEAT_COLUMN_IN * len(labs) + 1.2
+    h = 2 * label_in + sum(rows_in) + len(panels) * (title_in + gap_in)
+    fig = _figure(w, h)
+    y = h - label_in  # inches from the bottom, going down
+    axes = []
+    for k, ((dt, cs), rin) in enumerate(zip(panels, rows_in)):
+        y -= title_in + rin
+        ax = fig.add_axes((case_in / w, y / h, HEAT_COLUMN_IN * len(labs) / w, rin / h))
+        y -= gap_in
+        axes.append(ax)
+        cells = by_dt[dt]
+        data = np.full((len(cs), len(labs)), np.nan)
+        for (c, lab), (status, v) in cells.items():
+            if status == Status.OK and v is not None and c in cs:
+                data[cs.index(c), labs.index(lab)] = max(v, 1e-16)
+        if norm is not None:
+            im = ax.imshow(np.ma.masked_invalid(data), cmap=cmap, norm=norm, aspect="auto")
+        else:
+            ax.imshow(np.zeros_like(data), cmap="Greys", vmin=0, vmax=1, aspect="auto")
+        for (c, lab), (status, v) in cells.items():
+            if c not in cs:
+                continue
+            i, j = cs.index(c), labs.index(lab)
+            if status != Status.OK:
+                ax.add_patch(_cell_patch(j, i, STATUS_COLOURS.get(status, "#ff00ff")))
+                ax.text(j, i, STATUS_TEXT.get(status, status), ha="center", va="center", fontsize=6.5,
+                        color="white" if status in (Status.DIVERGED, Status.FAILED) else "black")
+            elif v is not None and norm is not None:
+                rgba = cmap(norm(max(v, 1e-16)))
+                light = 0.299 * rgba[0] + 0.587 * rgba[1] + 0.114 * rgba[2] > 0.5
+                ax.text(j, i, format(v, ".0e"), ha="center", va="center", fontsize=6.5,
+                        color="black" if light else "white")
+        ax.set_yticks(range(len(cs)), cs, fontsize=7.5)
+        ax.set_xticks(range(len(labs)), labs if k == len(panels) - 1 else [], rotation=60, ha="right",
+                      rotation_mode="anchor", fontsize=7)
+        if k == 0:  # the column labels above the first panel as well: read on the first screen
+            top = ax.secondary_xaxis("top")
+            top.set_xticks(range(len(labs)), labs, rotation=60, ha="left", rotation_mode="anchor", fontsize=7)
+        ax.tick_params(length=2)
+        _title(ax, f"dt = {dt:g} s" + (f"   ({len(cs)} cases)" if len(cs) > 1 else ""), fontsize=8.5,
+               loc="left", pad=2 if k else 2 + 72 * label_in)
+    if norm is not None:
         from matplotlib.ticker import FuncFormatter, NullFormatter
 
+        y_top = axes[0].get_position().y1
+        y_bot = axes[-1].get_position().y0
+        cax = fig.add_axes((1 - 0.95 / w, y_bot, 0.15 / w, y_top - y_bot))
         fig.colorbar(im, cax=cax).set_label("orientation error max (rad)", fontsize=8)
         cax.yaxis.set_major_formatter(FuncFormatter(_decade))
         cax.yaxis.set_minor_formatter(NullFormatter())
         cax.tick_params(labelsize=7)
-    else:
-        ax.imshow(np.zeros_like(data), cmap="Greys", vmin=0, vmax=1, aspect="auto")
-    for (c, lab), (status, v) in cells.items():
-        i, j = cases.index(c), labs.index(lab)
-        if status != Status.OK:
-            ax.add_patch(_cell_patch(j, i, STATUS_COLOURS.get(status, "#ff00ff")))
-            ax.text(j, i, STATUS_TEXT.get(status, status), ha="center", va="center", fontsize=7,
-                    color="white" if status in (Status.DIVERGED, Status.FAILED) else "black")
-        elif v is not None:
-            rgba = cmap(norm(max(v, 1e-16))) if cmap is not None else (1, 1, 1, 1)
-            light = 0.299 * rgba[0] + 0.587 * rgba[1] + 0.114 * rgba[2] > 0.5
-            ax.text(j, i, format(v, ".0e"), ha="center", va="center", fontsize=6.5,
-                    color="black" if light else "white")
-    ax.set_xticks(range(len(labs)), labs, rotation=60, ha="right", fontsize=7)
-    ax.set_yticks(range(len(cases)), cases, fontsize=8)
-    _title(ax, "worst orientation error over time and time steps (rad); "
-           "div = diverged, fail = failed, skip = skipped", fontsize=9, loc="left")
     return png_bytes(fig)
 
 
@@ -247,7 +419,7 @@ def _dt_axis(ax, dts: list[float]) -> None:
 
 def _convergence_rows(runs: list[dict], entries: list[dict], cases: list[str]) -> bytes:
     labs = rd.labels(runs)
-    col = colours(labs)
+    sty = styles(labs)
     fits = {(e["case"], rd.label(e), e["metric"]): e for e in entries}
     by_case = rd.by_case(runs)
     row_in = max(3.0, 0.115 * max(len(rd.labels(by_case[c])) for c in cases) + 0.7)  # room for the legend
@@ -260,17 +432,16 @@ def _convergence_rows(runs: list[dict], entries: list[dict], cases: list[str]) -
         axes = [fig.add_subplot(len(cases), 3, 3 * row + k + 1) for k in range(2)]
         for lab in rd.labels(case_runs):
             mine = sorted((r for r in case_runs if rd.label(r) == lab), key=lambda r: float(r["dt"]))
-            ls = linestyle(labs.index(lab), 10 if len(labs) <= 10 else 20)
             orders = []
             for ax, m in zip(axes, FITTED_METRICS):
                 x, y = _finite_xy([r["dt"] for r in mine],
                                   [rd.metric(r, m) if r.get("status") == Status.OK else None for r in mine],
                                   log_y=True, log_x=True)
-                h = ax.plot(x, y, marker="o", markersize=3, color=col[lab], linestyle=ls, linewidth=1)[0]
+                h = ax.plot(x, y, markersize=3.5, linewidth=1, fillstyle="none", **sty[lab])[0]
                 e = fits.get((case, lab, m))
                 if e and e.get("order") is not None and e.get("log10_coefficient") is not None:
                     fd = np.asarray(e["fitted_dts"], dtype=float)
-                    ax.plot(fd, 10 ** e["log10_coefficient"] * fd ** e["order"], color=col[lab],
+                    ax.plot(fd, 10 ** e["log10_coefficient"] * fd ** e["order"], color=sty[lab]["color"],
                             linewidth=0.6, alpha=0.6, linestyle=":")
                 orders.append("-" if not e else ("sat." if e.get("saturated") else rd.num(e.get("order"), ".2f")))
                 if m == FITTED_METRICS[0]:
@@ -297,15 +468,22 @@ def _convergence_rows(runs: list[dict], entries: list[dict], cases: list[str]) -
 def _per_case_grid(runs: list[dict], cases: list[str], x_of, xlabel: str, title: str | None = None,
                    dt_ticks: bool = False) -> bytes:
     """A grid of panels (3 per row), one per case: orientation error max (log) against x_of(run)
-    (log), one line per engine run through its time steps, one legend for all panels."""
+    (log), one line per engine run through its time steps (colour per engine, line style and marker
+    per integrator), one legend for all panels at the right of the first row."""
     labs = rd.labels(runs)
-    col = colours(labs)
+    sty = styles(labs)
     ncol = min(3, len(cases))
     nrow = (len(cases) + ncol - 1) // ncol
     head = 0.35 + (0.35 if title else 0.0)
-    fig = _figure(4.0 * ncol, 3.1 * nrow + _legend_in(len(labs)) + 0.2 + head)
+    panel_w, panel_h = 3.6, 2.8
+    legend_w = _legend_width_in(labs)
+    w = panel_w * ncol + legend_w + 0.3
+    h = max(panel_h * nrow, 0.17 * len(labs) + 0.5) + 0.3 + head
+    fig = _figure(w, h)
     handles = {}
     by_case = rd.by_case(runs)
+    fig.subplots_adjust(left=0.7 / w, right=(panel_w * ncol) / w, top=1 - head / h, bottom=0.5 / h,
+                        wspace=0.35, hspace=0.55)
     for k, case in enumerate(cases):
         ax = fig.add_subplot(nrow, ncol, k + 1)
         case_runs = by_case[case]
@@ -315,8 +493,7 @@ def _per_case_grid(runs: list[dict], cases: list[str], x_of, xlabel: str, title:
                               [rd.metric(r, ORIENTATION_ERROR_MAX) if r.get("status") == Status.OK else None
                                for r in mine], log_x=True, log_y=True)
             if len(x):
-                handles[lab] = ax.plot(x, y, marker="o", markersize=3, linewidth=1, color=col[lab],
-                                       linestyle=linestyle(labs.index(lab), 10 if len(labs) <= 10 else 20))[0]
+                handles[lab] = ax.plot(x, y, markersize=3.5, linewidth=1, fillstyle="none", **sty[lab])[0]
         _log_axes(ax, x=True, y=True)
         if dt_ticks:
             _dt_axis(ax, rd.dts(case_runs))
@@ -328,13 +505,8 @@ def _per_case_grid(runs: list[dict], cases: list[str], x_of, xlabel: str, title:
         if not any(len(ln.get_xdata()) for ln in ax.lines):
             _empty(ax, "no ok run to draw")
     if title:
-        fig.suptitle(title, fontsize=9, y=1 - 0.12 / fig.get_figheight())
-    if handles:
-        fig.legend([handles[lab] for lab in labs if lab in handles], [lab for lab in labs if lab in handles],
-                   loc="lower center", ncol=4, fontsize=7, frameon=False)
-    h = fig.get_figheight()
-    fig.subplots_adjust(left=0.08, right=0.98, top=1 - head / h, bottom=(_legend_in(len(handles)) + 0.5) / h,
-                        wspace=0.3, hspace=0.5)
+        fig.suptitle(title, fontsize=9, y=1 - 0.12 / h)
+    _legend_right(fig, handles, labs, top=1 - head / h)
     return png_bytes(fig)
 
 
@@ -357,20 +529,20 @@ def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | No
     loaded, truth_shown, notes = _load_case_runs(runs, physics, out_dir)
     if not loaded:
         return None, notes
-    fig = _figure(11.0, 7.0 + _legend_in(len(loaded)))
-    fig.subplots_adjust(left=0.07, right=0.98, wspace=0.2)  # the panels' widths, for envelope()
+    have = {rd.label(s.run) for s in loaded}
+    drawn = [lab for lab in all_labels if lab in have]
+    legend_w = _legend_width_in(drawn)
+    w, h = CASE_PANELS_W_IN + legend_w, CASE_PANELS_H_IN
+    fig = _figure(w, h)
+    fig.subplots_adjust(left=0.6 / w, right=(CASE_PANELS_W_IN - 0.1) / w, top=1 - 0.5 / h, bottom=0.45 / h,
+                        wspace=0.22, hspace=0.38)  # before the lines: the panels' widths, for envelope()
     axes = [fig.add_subplot(2, 2, k + 1) for k in range(4)]
-    handles = _draw_case_runs(axes, loaded, colours(all_labels), all_labels)
+    handles = _draw_case_runs(axes, loaded, styles(all_labels))
     if truth_shown is not None:
         _draw_truth_angular_velocity(axes[3], truth_shown)
     _style_case_panels(axes, physics)
-    fig.suptitle(f"{case}, dt = {dt:g} s", fontsize=10)
-    if handles:
-        labs = [lab for lab in all_labels if lab in handles]
-        fig.legend([handles[lab] for lab in labs], labs, loc="lower center", ncol=4, fontsize=7, frameon=False)
-    h = fig.get_figheight()
-    fig.subplots_adjust(left=0.07, right=0.98, top=1 - 0.55 / h, bottom=(_legend_in(len(handles)) + 0.5) / h,
-                        wspace=0.2, hspace=0.4)
+    fig.suptitle(f"{case}, dt = {dt:g} s", fontsize=10, x=0.6 / w, ha="left", y=1 - 0.12 / h)
+    _legend_right(fig, handles, drawn, top=1 - 0.45 / h)
     return png_bytes(fig), notes
 
 
@@ -401,30 +573,46 @@ def _load_case_runs(runs: list[dict], physics: rd.CasePhysics | None, out_dir: P
     return loaded, truth_shown, notes
 
 
-def _line(ax, x, y, log_y: bool = False, **style):
-    """Plot the finite (on a log axis: positive) samples of a line through its envelope."""
+def _line(ax, x, y, log_y: bool = False, marks: float | None = None, **style):
+    """Plot the finite (on a log axis: positive) samples of a line through its envelope.
+
+    marks : with a marker style, its markers at CASE_MARKS evenly spaced times, shifted by this
+    fraction (0..1) of their spacing (so that the markers of runs drawn on top of each other do
+    not hide each other); None: no markers."""
     x, y = _finite_xy(x, y, log_y=log_y)
     keep = envelope(x, y, ENVELOPE_PER_PIXEL * _columns(ax))
-    return ax.plot(x[keep], y[keep], **style)[0]
+    x, y = x[keep], y[keep]
+    if marks is None or len(x) < 2:
+        style.pop("marker", None)
+    else:
+        step = (x[-1] - x[0]) / CASE_MARKS
+        at = np.searchsorted(x, x[0] + step * (marks + np.arange(CASE_MARKS)))
+        style["markevery"] = sorted(set(int(i) for i in at if i < len(x)))
+    return ax.plot(x, y, **style)[0]
 
 
-def _draw_case_runs(axes: list, loaded: list, col: dict, all_labels: list[str]) -> dict:
+def _draw_case_runs(axes: list, loaded: list, sty: dict) -> dict:
     """Each loaded run's three error curves and its angular velocity components on case_dt's
-    axes; returns {label: line handle} for the legend."""
+    axes (colour per engine, line style and sparse markers per integrator); returns {label: line
+    handle} for the legend."""
     handles = {}
+    labs = list(dict.fromkeys(rd.label(s.run) for s in loaded))
     for s in loaded:
         lab = rd.label(s.run)
-        c = col[lab]
-        ls = linestyle(all_labels.index(lab), 10 if len(all_labels) <= 10 else 20)
+        # 1-pixel lines without anti-aliasing: crisp, and a third of the PNG bytes of the
+        # anti-aliased shades of dense round-off noise (the default suite's report.html: see
+        # docs/reports.md, "Size")
+        style = dict(sty[lab], linewidth=CASE_LINE_WIDTH_PT, markersize=3.5, fillstyle="none", antialiased=False)
+        phase = labs.index(lab) / len(labs)
         t, keep = s.t[s.keep], s.keep
         for ax, y in zip(axes[:3], (s.orientation_error, s.energy_error, s.angular_momentum_error)):
             if y is None:
                 continue
-            h = _line(ax, t, np.asarray(y)[keep], log_y=True, color=c, linestyle=ls, linewidth=1)
+            h = _line(ax, t, np.asarray(y)[keep], log_y=True, marks=phase, **style)
             handles.setdefault(lab, h)
         w = s.angular_velocity[keep]
         for k in range(3):
-            _line(axes[3], t, w[:, k], color=c, linestyle=ls, linewidth=1, alpha=0.8)
+            _line(axes[3], t, w[:, k], alpha=0.85, marks=phase, **style)
     return handles
 
 
@@ -443,7 +631,7 @@ def _style_case_panels(axes: list, physics: rd.CasePhysics | None) -> None:
     """Titles, labels and grids of case_dt's panels; the three error panels on log axes capped at
     LOG_PANEL_TOP, or a note where there is nothing to draw."""
     titles = ("orientation error (rad)", "energy error (rel. to max KE)",
-              "angular momentum error (rel. to max |L|)", "world angular velocity (rad/s); truth dashed")
+              "angular momentum error (rel. to max |L|)", "world angular velocity (rad/s); truth: wide grey")
     for k, (ax, title) in enumerate(zip(axes, titles)):
         _title(ax, title, fontsize=9)
         ax.set_xlabel("t (s)", fontsize=8)

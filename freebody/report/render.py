@@ -43,14 +43,27 @@ def convergence_of(doc: dict) -> list[dict]:
     return conv if isinstance(conv, list) else fit_orders(doc.get("runs") or [])
 
 
+def compare_with(baseline, doc: dict):
+    """The comparison of the results ``doc`` with a baseline (a baseline file, a results.json, a
+    run directory or a results dict), as ``freebody compare BASELINE RESULTS`` makes it with the
+    default tolerances; InputError when the baseline is unusable."""
+    from ..results.compare import compare, load_side
+
+    source = "baseline" if isinstance(baseline, dict) else str(baseline)
+    return compare(load_side(baseline, "baseline"), doc, sources=(source, "this run"))
+
+
 def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None = None,
-                  html: bool = True) -> list[Path]:
+                  html: bool = True, baseline=None) -> list[Path]:
     """Write ``out_dir/report.md`` and (unless ``html`` is False) ``out_dir/report.html``.
 
     doc : the results document (default: ``out_dir/results.json``).
     problems : case name -> Problem, for cases that results.json does not describe.
+    baseline : a baseline (file, results.json, run directory or dict) to compare the results with:
+        the reports then show the verdict of ``freebody compare`` (a finding and a section).
     Returns the paths written.
     """
+    from . import findings as fd
     from .markdown import render_markdown
 
     out_dir = Path(out_dir)
@@ -62,8 +75,11 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     runs = doc.get("runs") or []
     physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}
     pairs = {c: rd.pairwise(rs, physics[c], out_dir) for c, rs in rd.by_case(runs).items()}
+    found = fd.find(runs, rd.trajectory_reader(out_dir))
+    comparison = compare_with(baseline, doc) if baseline is not None else None
     md_path = out_dir / "report.md"
-    write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs))
+    write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs, found=found,
+                                               comparison=comparison))
     written = [md_path]
     if html:
         from . import plots as plots
@@ -71,16 +87,19 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
 
         figures, notes = plots.render_figures(runs, conv, physics, out_dir)
         html_path = out_dir / "report.html"
-        write_text_atomic(html_path, render_html(doc, conv, physics, figures, notes, out_dir, pairs=pairs))
+        write_text_atomic(html_path, render_html(doc, conv, physics, figures, notes, out_dir, pairs=pairs,
+                                                 found=found, comparison=comparison))
         written.append(html_path)
     return written
 
 
-def finish_run(out_dir: Path, doc: dict, problems: dict, report: bool = True) -> tuple[dict, list[Path]]:
+def finish_run(out_dir: Path, doc: dict, problems: dict, report: bool = True,
+               baseline=None) -> tuple[dict, list[Path]]:
     """After ``freebody run``: re-write results.json (atomically) with the fitted orders and the
-    cases, then write the reports.  Returns (the document, the report paths written)."""
+    cases, then write the reports (compared with ``baseline`` when given).  Returns (the document,
+    the report paths written)."""
     doc = augment(doc, problems)
     write_json_atomic(Path(out_dir) / "results.json", doc)
-    paths = write_reports(out_dir, doc, problems) if report else []
+    paths = write_reports(out_dir, doc, problems, baseline=baseline) if report else []
     return doc, paths
 

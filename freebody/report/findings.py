@@ -1,0 +1,750 @@
+"""Findings and the verdict page: what in a results document deserves a reader's attention,
+computed from the runs alone (nothing is written by hand per engine).
+
+Every engine run (not the reference engine's: its runs *are* the reference maps) that scheme
+identification judged (``matches_reference``, :func:`freebody.run.judge.identify`) belongs, on its
+case, to the group of the map it reproduces, or, reproducing none, to the group of the map it
+comes closest to (:func:`scheme_groups`).  Runs of one group that reproduce its map should agree
+with each other to round-off; runs of two groups differ by their schemes.  A finding is raised by
+
+- ``no-map``: a run that reproduces no reference map (its distance to the closest map is beyond
+  that map's round-off level, ``matches_reference["ratios"]`` > 1): an unknown scheme, or an engine
+  bug or convention trap on this case;
+- ``same-map-disagreement``: two runs of one group, at one dt and precision, whose final
+  orientations differ by more than the sum of their round-off levels (both reproduce the map, so
+  they cannot, unless the records contradict each other);
+- ``scheme-switch``: an engine run that reproduces on this case another map than on its other
+  runs (e.g. a per-step cap that only high spins reach);
+- ``outlier``: an orientation error :data:`OUTLIER_FACTOR` times above the median of the other
+  engines' runs of the same or lower formal order at the same case and dt (a clamp, a cap, a
+  convention trap); it names the map the run reproduces and points at the engine's conventions;
+- ``vs-engine``: a ported engine (e.g. MJX) farther from its original than round-off, or not
+  compared with it;
+- ``failed``, ``diverged``, ``unsupported-version`` (skipped: the adapter does not drive this
+  engine version) and ``not-installed`` (skipped) runs.
+
+Each :class:`Finding` carries its severity, one sentence, the size of the disagreement (rad) and,
+where the saved trajectories tell it, the time of its first sample (s), and names the results
+field that raised it.  Pure functions of run dicts (results.json ``runs`` entries); the times come
+from an optional ``trajectory(run)`` callable (the report reads the trajectory files).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .. import tolerances as tol
+from ..adapters.base import REFERENCE_ENGINE
+from ..numbers import finite_or_none
+from ..run.metrics import ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE
+from ..run.records import Status
+from .summary import run_label
+
+SEVERITIES = ("error", "warning", "info")  # most severe first
+# kind -> (severity, short title shown in the findings list)
+KINDS = {
+    "failed": ("error", "failed"),
+    "same-map-disagreement": ("error", "same map, different results"),
+    "no-map": ("warning", "reproduces no reference map"),
+    "outlier": ("warning", "error far above the other engines'"),
+    "diverged": ("warning", "diverged"),
+    "unsupported-version": ("warning", "engine version not supported"),
+    "vs-engine": ("warning", "differs from its original engine"),
+    "scheme-switch": ("info", "reproduces another map on this case"),
+    "reference-diverged": ("info", "reference map diverged"),
+    "vs-engine-unavailable": ("info", "not compared with its original engine"),
+    "not-installed": ("info", "engine not installed"),
+}
+# An orientation error this many times the median of the other engines' runs of the same or lower
+# formal order (same case, dt and precision) is an outlier.  On the default suite every other
+# engine run is at most 2.4x its peers' median (first-order maps with an explicit or an implicit
+# gyroscopic term); PyBullet's per-step rotation cap at 150 rad/s and dt = 10 ms is 3e9x (3.1 rad
+# against the floor below), DART's truncated exponential map on a slow spin 210x.
+OUTLIER_FACTOR = 100.0
+# Errors below the truth's own accuracy are not compared: the median is floored there (per precision).
+OUTLIER_FLOOR_RAD = {"float64": tol.CONVERGENCE_ORIENTATION_FLOOR_RAD,
+                     "float32": tol.CONVERGENCE_ORIENTATION_FLOOR_FLOAT32_RAD}
+
+TIE_NAMES_SHOWN = 2  # a group name lists the maps of a tie up to this many (else 'X = N more')
+
+# What a trajectory provider returns: (t (n,) s, q (n, 4) wxyz body -> world, q_truth (n, 4)) at
+# the run's saved samples, or None when its trajectory cannot be read.
+SavedSamples = tuple[np.ndarray, np.ndarray, np.ndarray]
+TrajectoryOf = Callable[[dict], "SavedSamples | None"]
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One finding about one run (or a pair of runs) of a case at one dt.
+
+    severity : one of :data:`SEVERITIES`.  kind : a key of :data:`KINDS`.
+    case, dt (s), label (engine/integrator[/precision]), engine : the run.  other : the other run of
+    a pair ('' for one run).
+    text : one sentence saying what and why, without the run's name (shown before it).
+    size_rad : the size of the disagreement (rad), None when it has none (a failed run).
+    t_s : the time of its first sample (s), None when the saved data do not tell it.
+    source : the results.json field or metric that raised it.
+    """
+
+    severity: str
+    kind: str
+    case: str
+    dt: float | None
+    label: str
+    engine: str
+    text: str
+    size_rad: float | None = None
+    t_s: float | None = None
+    source: str = ""
+    other: str = ""
+
+    @property
+    def title(self) -> str:
+        return KINDS[self.kind][1]
+
+
+def _finding(kind: str, run: dict, text: str, **kw) -> Finding:
+    dt = finite_or_none(run.get("dt"))
+    return Finding(KINDS[kind][0], kind, str(run.get("case", "")), dt, label(run), str(run.get("engine", "")),
+                   text, **kw)
+
+
+def label(run: dict) -> str:
+    """engine/integrator[/precision] (float64 omitted): one engine run across cases and dts."""
+    return run_label({**run, "precision": run.get("precision") or "float64"})
+
+
+def _precision(run: dict) -> str:
+    return run.get("precision") or "float64"
+
+
+def _ok(run: dict) -> bool:
+    return run.get("status") == Status.OK
+
+
+def _metric(run: dict, key: str) -> float | None:
+    return finite_or_none((run.get("metrics") or {}).get(key))
+
+
+def _e(x: float | None) -> str:
+    return "-" if x is None else format(x, ".1e")
+
+
+# --- the maps a run reproduces ---------------------------------------------------------------------
+
+def _match(run: dict) -> dict | None:
+    m = run.get("matches_reference")
+    return m if isinstance(m, dict) and run.get("engine") != REFERENCE_ENGINE else None
+
+
+def scheme_set(run: dict) -> tuple[str, ...]:
+    """The maps a run reproduces (its tie, in candidate order), () when none or not identified."""
+    m = _match(run)
+    if m is None:
+        return ()
+    tie = tuple(x for x in (m.get("indistinguishable") or []) if isinstance(x, str))
+    return tie or ((m["integrator"],) if isinstance(m.get("integrator"), str) else ())
+
+
+def scheme_key(run: dict) -> tuple[str, bool] | None:
+    """(map, reproduced) of a judged ok engine run: the map it reproduces (the first of a tie), or
+    the closest map and False; None for a run that was not judged (the reference engine, a run
+    that is not ok, a results file without identification)."""
+    m = _match(run)
+    if m is None or not _ok(run):
+        return None
+    if isinstance(m.get("integrator"), str):
+        return m["integrator"], True
+    if isinstance(m.get("closest"), str):
+        return m["closest"], False
+    return None
+
+
+def map_level(run: dict, name: str) -> float | None:
+    """The round-off level (rad, at the run's last sample) of map ``name`` on this run: its
+    ``levels_rad``, else ``threshold_rad`` when ``name`` is the closest map; floored at
+    SCHEME_ROUNDOFF_FLOOR_RAD."""
+    m = _match(run) or {}
+    level = finite_or_none((m.get("levels_rad") or {}).get(name))
+    if level is None and m.get("closest") == name:
+        level = finite_or_none(m.get("threshold_rad"))
+    return None if level is None else max(level, tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+
+
+def map_distance(run: dict, name: str) -> float | None:
+    """The largest orientation difference (rad) of the run from map ``name``."""
+    m = _match(run) or {}
+    d = finite_or_none((m.get("candidates") or {}).get(name))
+    if d is None and m.get("closest") == name:
+        d = finite_or_none(m.get("max_orientation_diff_rad"))
+    return d
+
+
+def map_ratio(run: dict, name: str) -> float | None:
+    """max over samples of (difference from map ``name``) / (its round-off level): <= 1 reproduces."""
+    m = _match(run) or {}
+    r = finite_or_none((m.get("ratios") or {}).get(name))
+    if r is None:
+        d, level = map_distance(run, name), map_level(run, name)
+        r = d / level if d is not None and level else None
+    return r
+
+
+def map_order(name: str) -> int | None:
+    """The formal order of a reference map (reference integrators and engine-equivalent maps)."""
+    from ..reference_impl.engine_maps import ENGINE_MAPS
+    from ..reference_impl.integrators import INTEGRATORS
+
+    entry = INTEGRATORS.get(name) or ENGINE_MAPS.get(name)
+    return entry.order if entry is not None else None
+
+
+def map_summary(name: str) -> str:
+    """A map's one-line description ('' for an unknown name)."""
+    from ..reference_impl.engine_maps import ENGINE_MAPS
+    from ..reference_impl.integrators import INTEGRATORS
+
+    entry = INTEGRATORS.get(name) or ENGINE_MAPS.get(name)
+    return entry.summary if entry is not None else ""
+
+
+def run_order(run: dict) -> int | None:
+    """The formal order of a run: its integrator's for a reference run; for an engine run the
+    lowest order of the maps it reproduces (or of its closest map); None when unknown."""
+    if run.get("engine") == REFERENCE_ENGINE:
+        return map_order(str(run.get("integrator")))
+    names = scheme_set(run)
+    if not names:
+        key = scheme_key(run)
+        names = (key[0],) if key else ()
+    orders = [o for o in map(map_order, names) if o is not None]
+    return min(orders) if orders else None
+
+
+# --- scheme groups (the verdict page) ----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Member:
+    """One run of a scheme group.
+
+    distance_rad : its largest orientation difference from the group's map (rad).
+    level_rad : the map's round-off level on this run (rad, at the last sample).
+    ratio : distance / level, max over samples (<= 1: reproduces).
+    error_rad : its orientation error max against the truth (rad).
+    """
+
+    run: dict
+    label: str
+    dt: float
+    distance_rad: float | None
+    level_rad: float | None
+    ratio: float | None
+    error_rad: float | None
+
+
+@dataclass(frozen=True)
+class SchemeGroup:
+    """The engine runs of one case that reproduce one map (``reproduced``) or, reproducing none,
+    come closest to it.  tie : the maps indistinguishable from it on every member's run ((scheme,)
+    when none).  members : in run order."""
+
+    case: str
+    scheme: str
+    reproduced: bool
+    tie: tuple[str, ...]
+    members: tuple[Member, ...]
+
+    @property
+    def name(self) -> str:
+        """The group's map: 'X', 'X = Y' (a tie of two), 'X = N more' (a larger tie, see
+        :attr:`tie_text`), or 'none (closest X)'."""
+        if not self.reproduced:
+            return f"none (closest {self.scheme})"
+        if len(self.tie) > TIE_NAMES_SHOWN:
+            return f"{self.scheme} = {len(self.tie) - 1} more"
+        return " = ".join(self.tie)
+
+    @property
+    def tie_text(self) -> str:
+        """Every map of the tie: 'X = Y = Z ...'."""
+        return " = ".join(self.tie)
+
+    def dts(self) -> list[float]:
+        return sorted({m.dt for m in self.members}, reverse=True)
+
+    def at(self, dt: float) -> list[Member]:
+        return [m for m in self.members if m.dt == dt]
+
+
+def scheme_groups(case_runs: list[dict]) -> list[SchemeGroup]:
+    """The scheme groups of one case's runs (judged ok engine runs only), keyed by the map each run
+    reproduces (the first of its tie, in candidate order, as identification names it) or, for a
+    run that reproduces none, its closest map.  A group's tie: the maps every member reproduces.
+    Groups in order of their first member, those of runs that reproduce no map last; members in
+    run order.  (Two groups may still agree to round-off on this case, when their runs' ties
+    overlap: :func:`between_groups` says so.)"""
+    acc: dict[tuple[str, bool], list[dict]] = {}
+    for r in case_runs:
+        key = scheme_key(r)
+        if key is not None:
+            acc.setdefault(key, []).append(r)
+    groups = []
+    for (scheme, reproduced), rs in acc.items():
+        tie = [scheme]
+        if reproduced:
+            sets = [set(scheme_set(r)) or {scheme} for r in rs]
+            tie += [x for x in scheme_set(rs[0]) if x != scheme and all(x in st for st in sets)]
+        members = tuple(Member(r, label(r), float(r["dt"]), map_distance(r, scheme), map_level(r, scheme),
+                               map_ratio(r, scheme), _metric(r, ORIENTATION_ERROR_MAX)) for r in rs)
+        groups.append(SchemeGroup(str(rs[0]["case"]), scheme, reproduced, tuple(tie), members))
+    groups.sort(key=lambda g: not g.reproduced)
+    return groups
+
+
+@dataclass(frozen=True)
+class GroupPair:
+    """Two scheme groups of a case at one dt: the largest angle (rad) between the final orientations
+    of a run of each (same precision), and those runs.  When the groups' ties share a map (every
+    run of both reproduces it) they agree to round-off on this case; else they differ by their
+    schemes."""
+
+    dt: float
+    a: SchemeGroup
+    b: SchemeGroup
+    angle_rad: float | None
+    run_a: str
+    run_b: str
+
+    @property
+    def agree(self) -> bool:
+        return self.a.reproduced and self.b.reproduced and bool(set(self.a.tie) & set(self.b.tie))
+
+    @property
+    def attribution(self) -> str:
+        if self.agree:
+            return f"agree to round-off here ({self.a.name} ~ {self.b.name})"
+        return f"differs by scheme ({self.a.name} vs {self.b.name})"
+
+
+def final_angle(a: dict, b: dict) -> float | None:
+    """Geodesic angle (rad) between two runs' final orientations (results.json ``final_state``)."""
+    from ..reference_impl.rotations import geodesic_angle
+
+    qs = []
+    for r in (a, b):
+        fs = r.get("final_state")
+        try:
+            q = np.asarray((fs or {})["quaternion_wxyz"], dtype=float)
+        except (KeyError, TypeError, ValueError):
+            return None
+        if q.shape != (4,) or not np.all(np.isfinite(q)) or not np.any(q):
+            return None
+        qs.append(q)
+    return finite_or_none(float(geodesic_angle(qs[0], qs[1])))
+
+
+def between_groups(groups: list[SchemeGroup]) -> list[GroupPair]:
+    """Every two groups of a case at each dt both ran at: their largest final-state angle."""
+    out = []
+    for i, ga in enumerate(groups):
+        for gb in groups[i + 1:]:
+            for dt in ga.dts():
+                best = None
+                for ma in ga.at(dt):
+                    for mb in gb.at(dt):
+                        if _precision(ma.run) != _precision(mb.run):
+                            continue
+                        angle = final_angle(ma.run, mb.run)
+                        if angle is not None and (best is None or angle > best[0]):
+                            best = (angle, ma.label, mb.label)
+                if best is not None:
+                    out.append(GroupPair(dt, ga, gb, *best))
+    out.sort(key=lambda p: (-p.dt, -(p.angle_rad or 0.0)))
+    return out
+
+
+def pair_relation(a: dict, b: dict) -> str:
+    """How two runs of one case and dt relate: 'same map (X)' (X: the first map both reproduce),
+    'differs by scheme (A vs B)' or '' (either not judged; a reference run is its own map)."""
+    names, sets = [], []
+    for r in (a, b):
+        if r.get("engine") == REFERENCE_ENGINE:
+            names.append((str(r.get("integrator")), True))
+            sets.append((str(r.get("integrator")),))
+        else:
+            key = scheme_key(r)
+            if key is None:
+                return ""
+            names.append(key)
+            sets.append(scheme_set(r) or (key[0],))
+    (na, ra), (nb, rb) = names
+    common = [x for x in sets[0] if x in sets[1]]
+    if ra and rb and common:
+        return f"same map ({common[0]})"
+    text = [n if r else f"none, closest {n}" for n, r in names]
+    return f"differs by scheme ({text[0]} vs {text[1]})"
+
+
+# --- findings --------------------------------------------------------------------------------------
+
+def _first_time(t: np.ndarray, values: np.ndarray, limit: float) -> float | None:
+    """The first t where values > limit (finite samples; a non-finite value counts as beyond)."""
+    beyond = ~(np.asarray(values, dtype=float) <= limit)
+    idx = np.flatnonzero(beyond)
+    return float(t[idx[0]]) if len(idx) else None
+
+
+def _error_series(traj: SavedSamples) -> tuple[np.ndarray, np.ndarray]:
+    from ..reference_impl.rotations import geodesic_angle
+
+    t, q, q_truth = traj
+    n = min(len(t), len(q), len(q_truth))
+    with np.errstate(all="ignore"):
+        return np.asarray(t[:n], float), geodesic_angle(np.asarray(q_truth[:n], float), np.asarray(q[:n], float))
+
+
+def _pair_first_time(ta: SavedSamples, tb: SavedSamples, limit: float) -> float | None:
+    """The first common sample time where two runs' orientations differ by more than ``limit``."""
+    from ..reference_impl.rotations import geodesic_angle
+
+    (t_a, q_a, _), (t_b, q_b, _) = ta, tb
+    common, ia, ib = np.intersect1d(np.asarray(t_a, float), np.asarray(t_b, float), return_indices=True)
+    if not len(common):
+        return None
+    with np.errstate(all="ignore"):
+        d = geodesic_angle(np.asarray(q_a, float)[ia], np.asarray(q_b, float)[ib])
+    return _first_time(common, d, limit)
+
+
+def _safe(trajectory: TrajectoryOf | None, run: dict) -> SavedSamples | None:
+    """The run's saved samples from the provider (which says None for an unreadable file: the
+    finding then has no time), or None without a provider."""
+    return None if trajectory is None else trajectory(run)
+
+
+def status_findings(runs: list[dict]) -> list[Finding]:
+    """failed, diverged, skipped (unsupported version; not installed: once per engine)."""
+    out = []
+    missing: dict[str, list[dict]] = {}
+    for r in runs:
+        status, msg = r.get("status"), (r.get("message") or "").strip()
+        if status == Status.FAILED:
+            out.append(_finding("failed", r, f"failed: {msg or '(no message)'}", source="status"))
+        elif status == Status.DIVERGED:
+            t = finite_or_none(r.get("diverged_at_s"))
+            size = _metric(r, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE)
+            kind = "reference-diverged" if r.get("engine") == REFERENCE_ENGINE else "diverged"
+            why = msg.split(": ", 1)[1] if msg.startswith("diverged at") and ": " in msg else msg
+            out.append(_finding(kind, r, f"diverged{'' if t is None else f' at t = {t:.4g} s'}"
+                                         f"{f': {why}' if why else ''}"
+                                         f"{'' if size is None else f' (orientation error before: {_e(size)} rad)'}",
+                                size_rad=size, t_s=t, source="status, diverged_at_s"))
+        elif status == Status.SKIPPED:
+            if r.get("engine_version"):
+                out.append(_finding("unsupported-version", r, f"skipped: {msg or 'unsupported version'}",
+                                    source="status, engine_version"))
+            else:
+                missing.setdefault(str(r.get("engine")), []).append(r)
+    for engine, rs in missing.items():
+        msg = (rs[0].get("message") or "").strip()
+        out.append(Finding(KINDS["not-installed"][0], "not-installed", "", None, engine, engine,
+                           f"{len(rs)} runs skipped: {msg or 'not installed'}", source="status"))
+    return out
+
+
+def no_map_findings(runs: list[dict]) -> list[Finding]:
+    """Runs that reproduce no reference map: the closest, its distance and round-off level."""
+    out = []
+    for r in runs:
+        key = scheme_key(r)
+        if key is None or key[1]:
+            continue
+        name = key[0]
+        d, level, ratio = map_distance(r, name), map_level(r, name), map_ratio(r, name)
+        out.append(_finding("no-map", r, f"reproduces no map; closest {name} at {_e(d)} rad"
+                                         f"{'' if ratio is None else f', {ratio:.2g} x its round-off level'}"
+                                         f"{'' if level is None else f' ({_e(level)} rad)'}",
+                            size_rad=d, source="matches_reference"))
+    return out
+
+
+def disagreement_findings(runs: list[dict], trajectory: TrajectoryOf | None = None) -> list[Finding]:
+    """Runs of one scheme group (same case, dt, precision; both reproduce the map) whose final
+    orientations differ by more than the sum of their round-off levels of that map."""
+    out = []
+    for case, case_runs in _by_case(runs).items():
+        for g in scheme_groups(case_runs):
+            if not g.reproduced:
+                continue
+            for dt in g.dts():
+                ms = g.at(dt)
+                for i, a in enumerate(ms):
+                    for b in ms[i + 1:]:
+                        if _precision(a.run) != _precision(b.run):
+                            continue
+                        angle = final_angle(a.run, b.run)
+                        if angle is None or a.level_rad is None or b.level_rad is None:
+                            continue
+                        limit = a.level_rad + b.level_rad
+                        if angle <= limit:
+                            continue
+                        ta, tb = _safe(trajectory, a.run), _safe(trajectory, b.run)
+                        t0 = _pair_first_time(ta, tb, limit) if ta is not None and tb is not None else None
+                        out.append(_finding(
+                            "same-map-disagreement", a.run,
+                            f"and {b.label} both reproduce {g.scheme}, yet their final orientations differ by "
+                            f"{_e(angle)} rad, beyond the sum of their round-off levels ({_e(limit)} rad)",
+                            size_rad=angle, t_s=t0, source="final_state, matches_reference.levels_rad",
+                            other=b.label))
+    return out
+
+
+def _majority_map(rs: list[dict]) -> tuple[str | None, int, int]:
+    """(the map most of these runs reproduce (on a tie of counts, the first seen), their number, all)."""
+    sets = [scheme_set(r) for r in rs if scheme_key(r) is not None]
+    counts: dict[str, int] = {}
+    for s in sets:
+        for name in s:
+            counts[name] = counts.get(name, 0) + 1
+    if not counts:
+        return None, 0, len(sets)
+    best = max(counts, key=lambda k: counts[k])
+    return best, counts[best], len(sets)
+
+
+def switch_findings(runs: list[dict]) -> list[Finding]:
+    """Runs that reproduce a map other than the one most runs of their engine run reproduce."""
+    out = []
+    by_label: dict[str, list[dict]] = {}
+    for r in runs:
+        if scheme_key(r) is not None:
+            by_label.setdefault(label(r), []).append(r)
+    for lab, rs in by_label.items():
+        best, n, total = _majority_map(rs)
+        if best is None or n == total:
+            continue
+        for r in rs:
+            key = scheme_key(r)
+            if key[1] and best not in scheme_set(r):
+                out.append(_finding("scheme-switch", r, f"reproduces {key[0]} here; {n} of its {total} runs "
+                                                        f"reproduce {best}", size_rad=map_distance(r, best),
+                                    source="matches_reference"))
+    return out
+
+
+def outlier_findings(runs: list[dict], trajectory: TrajectoryOf | None = None) -> list[Finding]:
+    """Engine runs whose orientation error max is OUTLIER_FACTOR times the median of the other
+    engines' runs of the same or lower formal order at the same case, dt and precision (the
+    reference maps' runs when no other engine ran), floored at the truth's accuracy."""
+    out = []
+    groups: dict[tuple, list[dict]] = {}
+    for r in runs:
+        if _ok(r) and _metric(r, ORIENTATION_ERROR_MAX) is not None:
+            groups.setdefault((r["case"], float(r["dt"]), _precision(r)), []).append(r)
+    for (case, dt, precision), rs in groups.items():
+        for r in rs:
+            if r.get("engine") == REFERENCE_ENGINE:
+                continue
+            order = run_order(r)
+            peers = [p for p in rs if p.get("engine") not in (r.get("engine"), REFERENCE_ENGINE)]
+            whose = "the other engines' runs"
+            if not peers:
+                peers, whose = [p for p in rs if p.get("engine") == REFERENCE_ENGINE], "the reference maps' runs"
+            peers = [p for p in peers if order is None or run_order(p) is None or run_order(p) <= order]
+            if not peers:
+                continue
+            err = _metric(r, ORIENTATION_ERROR_MAX)
+            median = float(np.median([_metric(p, ORIENTATION_ERROR_MAX) for p in peers]))
+            base = max(median, OUTLIER_FLOOR_RAD.get(precision, OUTLIER_FLOOR_RAD["float64"]))
+            if err <= OUTLIER_FACTOR * base:
+                continue
+            traj = _safe(trajectory, r)
+            t0 = None
+            if traj is not None:
+                t, e = _error_series(traj)
+                t0 = _first_time(t, e, OUTLIER_FACTOR * base)
+            key = scheme_key(r)
+            if key is None:
+                why = "no scheme identified"
+            elif key[1]:
+                summary = map_summary(key[0])
+                why = f"it reproduces {key[0]}" + (f": {summary}" if summary else "")
+            else:
+                why = f"reproduces no map (closest {key[0]})"
+            floored = "" if median >= base else f", floored at the truth's accuracy {base:g} rad"
+            out.append(_finding(
+                "outlier", r,
+                f"orientation error {_e(err)} rad, {err / base:.2g} x the median of {whose} of the same or "
+                f"lower order ({_e(median)} rad, {len(peers)} runs{floored}); {why}",
+                size_rad=err, t_s=t0, source=ORIENTATION_ERROR_MAX))
+    return out
+
+
+def vs_engine_findings(runs: list[dict]) -> list[Finding]:
+    """Ported engines against their original (``vs_engine``): beyond the run's round-off level
+    (of its closest map: the level of its precision), or not compared."""
+    out = []
+    for r in runs:
+        v = r.get("vs_engine")
+        if not isinstance(v, dict) or not _ok(r):
+            continue
+        other = f"{v.get('engine')}/{v.get('integrator')}"
+        if v.get("message"):
+            out.append(_finding("vs-engine-unavailable", r, f"not compared with {other}: {v['message']}",
+                                source="vs_engine", other=other))
+            continue
+        d = finite_or_none(v.get("max_orientation_diff_rad"))
+        key = scheme_key(r)
+        level = map_level(r, key[0]) if key else None
+        limit = level if level is not None else tol.SCHEME_ROUNDOFF_FLOOR_RAD
+        if d is None:
+            out.append(_finding("vs-engine-unavailable", r, f"its difference from {other} is not finite",
+                                source="vs_engine", other=other))
+        elif d > limit:
+            final = finite_or_none(v.get("final_orientation_diff_rad"))
+            out.append(_finding("vs-engine", r, f"differs from {other} by up to {_e(d)} rad (final {_e(final)} rad), "
+                                                f"beyond its round-off level ({_e(limit)} rad)",
+                                size_rad=d, source="vs_engine", other=other))
+    return out
+
+
+def _by_case(runs: list[dict]) -> dict[str, list[dict]]:
+    out: dict[str, list[dict]] = {}
+    for r in runs:
+        out.setdefault(r["case"], []).append(r)
+    return out
+
+
+def find(runs: list[dict], trajectory: TrajectoryOf | None = None) -> list[Finding]:
+    """Every finding of a results document's runs, most severe first, then by kind, case (in run
+    order), dt (coarsest first) and run.  A run that is an ``outlier`` is not also listed as a
+    ``scheme-switch`` (its outlier finding names the map it reproduces)."""
+    found = (status_findings(runs) + no_map_findings(runs) + disagreement_findings(runs, trajectory)
+             + outlier_findings(runs, trajectory) + vs_engine_findings(runs))
+    outliers = {(f.case, f.dt, f.label) for f in found if f.kind == "outlier"}
+    found += [f for f in switch_findings(runs) if (f.case, f.dt, f.label) not in outliers]
+    cases = {c: i for i, c in enumerate(dict.fromkeys(r["case"] for r in runs))}
+    kinds = {k: i for i, k in enumerate(KINDS)}
+    found.sort(key=lambda f: (SEVERITIES.index(f.severity), kinds[f.kind], cases.get(f.case, -1),
+                              -(f.dt or 0.0), f.label))
+    return found
+
+
+@dataclass(frozen=True)
+class FindingLine:
+    """Findings of one kind about one engine run, shown as one line of the findings list."""
+
+    severity: str
+    kind: str
+    label: str
+    items: tuple[Finding, ...]
+
+
+def summarize(findings: list[Finding], separate: int = 3) -> list[FindingLine]:
+    """The findings list: findings of one kind about one engine run on one line when there are
+    more than ``separate`` of them (e.g. a reference map that diverges on 13 cases), else one line
+    each; in the order of ``findings``."""
+    by: dict[tuple[str, str], list[Finding]] = {}
+    for f in findings:
+        by.setdefault((f.kind, f.label), []).append(f)
+    out, seen = [], set()
+    for f in findings:
+        key = (f.kind, f.label)
+        items = by[key]
+        if len(items) > separate:
+            if key not in seen:
+                seen.add(key)
+                out.append(FindingLine(f.severity, f.kind, f.label, tuple(items)))
+        else:
+            out.append(FindingLine(f.severity, f.kind, f.label, (f,)))
+    return out
+
+
+def where(f: Finding) -> str:
+    """'case dt = 0.01 s' of a finding ('' for one about no particular run)."""
+    if not f.case:
+        return ""
+    return f.case + ("" if f.dt is None else f" dt = {f.dt:g} s")
+
+
+def numbers(f: Finding) -> str:
+    """The finding's numbers: 'size 3.1e+00 rad, from t = 0.01 s' (parts that are known)."""
+    parts = []
+    if f.size_rad is not None and math.isfinite(f.size_rad):
+        parts.append(f"size {_e(f.size_rad)} rad")
+    if f.t_s is not None:
+        parts.append(f"from t = {f.t_s:.4g} s")
+    return ", ".join(parts)
+
+
+# --- what the verdict page shows ---------------------------------------------------------------------
+
+# Kinds whose finding points at the engine's conventions (a trap or scheme of that engine).
+CONVENTION_KINDS = ("outlier", "no-map", "scheme-switch", "same-map-disagreement", "diverged", "failed",
+                    "vs-engine")
+
+
+def counts(findings: list[Finding]) -> dict[str, int]:
+    """severity -> number of findings."""
+    return {s: sum(f.severity == s for f in findings) for s in SEVERITIES}
+
+
+def counts_text(findings: list[Finding]) -> str:
+    """'0 errors, 3 warnings, 13 info'."""
+    return ", ".join(f"{n} {s}{'' if n == 1 or s == 'info' else 's'}" for s, n in counts(findings).items())
+
+
+def group_error(group: SchemeGroup, dt: float) -> str:
+    """The orientation error max of a group's runs at one dt: one number when they agree to 3
+    digits, else 'lowest - highest'."""
+    errs = [m.error_rad for m in group.at(dt) if m.error_rad is not None]
+    if not errs:
+        return "-"
+    lo, hi = min(errs), max(errs)
+    return format(lo, ".3e") if format(lo, ".3e") == format(hi, ".3e") else f"{lo:.3e} - {hi:.3e}"
+
+
+def member_text(m: Member) -> str:
+    """'3.1e-10 (r 0.004)': a member's distance to its group's map and its ratio to round-off."""
+    return _e(m.distance_rad) + ("" if m.ratio is None else f" (r {m.ratio:.2g})")
+
+
+VERDICT_NOTE = ("Per case, the engine runs grouped by the reference map they reproduce (to round-off, at every "
+                "sample) or, reproducing none, come closest to; per dt, each run's largest distance from "
+                "the group's map (rad) and r, that distance over the map's round-off level (r <= 1: "
+                "reproduces), and the group's orientation error max against the truth.  The runs of one "
+                "group share their scheme, so a difference between them beyond round-off is an engine's "
+                "(a finding); between groups the difference is the schemes'.  The reference engine's "
+                "runs are the maps themselves (see each case's Runs).")
+BETWEEN_NOTE = ("Between groups: the largest angle between the final orientations of a run of each group "
+                "(rad), per dt; two groups whose ties share a map (every run of both reproduces it) agree "
+                "to round-off on this case.")
+FINDINGS_NOTE = ("Computed from the runs (nothing is written by hand per engine): a run reproducing no map, "
+                 "runs of one map that disagree, an orientation error far above the other engines' "
+                 "(x{:g} the median of the runs of the same or lower order at that case and dt), a run "
+                 "that reproduces another map on one case, ported engines against their original, and runs "
+                 "that failed, diverged or were skipped.  Each names the results field that raised it "
+                 "and links to the run's plots.").format(OUTLIER_FACTOR)
+NO_FINDINGS = ("No finding: every engine run reproduces a reference map, runs of one map agree, no error "
+               "stands out, and every run finished.")
+
+
+def between_table(groups: list[SchemeGroup]) -> tuple[list[str], list[list[str]]]:
+    """(columns, rows) of a case's between-groups table: one row per two groups, attributed to the
+    scheme ('differs by scheme (A vs B)', or 'agree to round-off here (A ~ B)' when their ties share
+    a map), with their largest final-orientation angle per dt.  ([], []) with fewer than two
+    groups."""
+    pairs = between_groups(groups)
+    if not pairs:
+        return [], []
+    dts = sorted({p.dt for p in pairs}, reverse=True)
+    rows: dict[tuple[str, str], dict] = {}
+    for p in pairs:
+        row = rows.setdefault((p.a.name, p.b.name), {"pairs": []})
+        row["pairs"].append(p)
+        row[p.dt] = _e(p.angle_rad)
+    columns = ["between groups", *(f"dt = {d:g} s: final orientations apart (rad)" for d in dts)]
+    return columns, [[row["pairs"][0].attribution, *(row.get(d, "") for d in dts)] for row in rows.values()]
