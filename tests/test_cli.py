@@ -220,3 +220,18 @@ def test_same_inputs_give_the_same_numbers(tmp_path):
         doc = json.loads((tmp_path / str(i) / "results.json").read_text())
         docs.append([{k: v for k, v in r.items() if k != "wall_time_s"} for r in doc["runs"]])
     assert docs[0] == docs[1]
+
+
+def test_run_with_a_baseline_shows_the_compare_verdict_in_the_report(tmp_path, capsys):
+    """--baseline: the report carries the compare verdict; an unusable baseline is exit 2 before any run."""
+    args = ["run", "quiz", "--engine", "reference", "--integrator", "rk4", "--quiet"]
+    assert main([*args, "--out", str(tmp_path / "a"), "--no-report"]) == 0
+    assert main([*args, "--out", str(tmp_path / "b"), "--baseline", str(tmp_path / "a")]) == 0
+    report = (tmp_path / "b" / "report.md").read_text()
+    assert "compare verdict" in report and "Compare with baseline" in report
+    capsys.readouterr()
+    assert main([*args, "--out", str(tmp_path / "c"), "--baseline", str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--baseline" in err[0] and not (tmp_path / "c").exists()
+    assert main(["report", str(tmp_path / "a"), "--baseline", str(tmp_path / "b")]) == 0
+    assert "compare verdict" in (tmp_path / "a" / "report.md").read_text()

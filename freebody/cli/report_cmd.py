@@ -14,6 +14,9 @@ def add_parser(sub) -> None:
                    help="a case TOML file (repeatable): its mass and inertia, for results.json files "
                         "that do not describe their cases")
     p.add_argument("--markdown-only", action="store_true", help="write report.md only (no plots)")
+    p.add_argument("--baseline", metavar="FILE",
+                   help="a baseline (freebody baseline), results.json or run directory: the report "
+                        "shows the compare verdict against it")
 
 
 def run(args) -> int:
@@ -31,6 +34,7 @@ def run(args) -> int:
     problems = {pb.name: pb for pb in (load_case(p) for p in args.case)}
     with output_lock(out_dir, option=""):  # not while a freebody run writes there
         doc = load_results(out_dir)
-        for path in write_reports(out_dir, doc, problems, html=not args.markdown_only):
+        for path in write_reports(out_dir, doc, problems, html=not args.markdown_only,
+                                  baseline=args.baseline):
             print(f"report: {path}")
     return 0

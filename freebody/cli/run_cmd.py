@@ -43,6 +43,9 @@ def add_parser(sub) -> None:
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help=f"output directory (default {DEFAULT_OUT}); one freebody process writes it at a time")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.add_argument("--baseline", metavar="FILE",
+                   help="a baseline (freebody baseline), results.json or run directory: the report "
+                        "shows the compare verdict against it (freebody compare gives the exit code)")
     p.add_argument("--table", action="store_true",
                    help="also print the full table, one row a run (report.md has it too); default: "
                         "a summary of cases x engines and the runs that are not ok")
@@ -75,6 +78,10 @@ def run(args) -> int:
     problems = [load_case(n) for n in names]
     check_run_lengths(problems, args.dt, args.duration)  # at most MAX_STEPS_PER_RUN steps a run
     engines = select_engines(args.engine, all_engines=args.all_engines)
+    if args.baseline is not None:  # unusable: exit 2 now, not after the runs
+        from ..results.document import load_results
+
+        load_results(args.baseline, "--baseline")
     from ..run.budget import check_run
     from ..run.suite import check_options, default_jobs
 
@@ -95,6 +102,7 @@ def run(args) -> int:
         print(terminal_summary(doc["runs"], summary_width()), flush=True)  # before the reports take their time
         from ..report.render import finish_run  # fitted orders into results.json, then report.md/.html
 
-        doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report)
+        doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report,
+                                  baseline=args.baseline)
     print("\n" + where_to_look(out_dir, reports))
     return 1 if any(r["status"] == Status.FAILED for r in doc["runs"]) else 0

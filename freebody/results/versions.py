@@ -26,21 +26,29 @@ from ..errors import InputError
 from .compare import run_key, scheme_of, scheme_text
 
 
-def _base(engine: str) -> str:
+def _base(engine: str, _memo: dict[str, str] | None = None) -> str:
+    """The engine of a name (versioned or not); ``_memo`` caches the answers of one document
+    (looking an engine up reads the entry points: milliseconds, times thousands of runs)."""
+    if _memo is not None and engine in _memo:
+        return _memo[engine]
     try:
-        return base_engine(engine)
+        out = base_engine(engine)
     except UnknownEngine:  # an engine this freebody does not know (a third party's): its own name
-        return engine.split("=")[0].split("<")[0].split(">")[0].split("!")[0].split("~")[0]
+        out = engine.split("=")[0].split("<")[0].split(">")[0].split("!")[0].split("~")[0]
+    if _memo is not None:
+        _memo[engine] = out
+    return out
 
 
 def version_groups(doc: dict) -> dict[str, list[str]]:
     """engine -> its names in the document's runs (in run order), for engines run under two or more
     names (versions)."""
     names: dict[str, dict[str, None]] = {}
+    memo: dict[str, str] = {}
     for r in doc.get("runs") or []:
         e = r.get("engine")
         if isinstance(e, str):
-            names.setdefault(_base(e), {})[e] = None
+            names.setdefault(_base(e, memo), {})[e] = None
     return {b: list(n) for b, n in names.items() if len(n) > 1}
 
 
@@ -158,8 +166,9 @@ def side_by_side(doc: dict) -> list[VersionRow]:
     orders = _orders(doc)
     versions = doc.get("engines") or {}
     rows: dict[tuple, dict[str, dict[float, dict]]] = {}
+    memo: dict[str, str] = {}
     for r in doc.get("runs") or []:
-        base = _base(r["engine"]) if isinstance(r.get("engine"), str) else None
+        base = _base(r["engine"], memo) if isinstance(r.get("engine"), str) else None
         if base not in groups:
             continue
         case, _, integ, prec, dt = run_key(r)
