@@ -240,3 +240,21 @@ def test_new_case_refuses_a_name_no_case_may_have(capsys):
 def test_a_name_with_quotes_and_backslashes_round_trips(tmp_path):
     name = 'say "hi" \\ bye'
     assert load_case(_write(tmp_path, case_template(name, minimal=True))).name == name
+
+
+def test_the_defaults_a_case_used_are_in_results_and_report(tmp_path):
+    """No [world] means no gravity: results.json (schema 3, cases.<name>.defaults) and the report say so."""
+    import json
+
+    from freebody.cli import main
+
+    case = tmp_path / "bare.toml"
+    case.write_text('name = "bare"\ndt = 0.01\nduration = 0.1\n'
+                    'body = { mass = 1.0, inertia = [[1, 0, 0], [0, 2, 0], [0, 0, 3]] }\n')
+    assert main(["run", str(case), "--engine", "reference", "--integrator", "rk4", "--out", str(tmp_path / "o"),
+                 "--quiet"]) == 0
+    doc = json.loads((tmp_path / "o" / "results.json").read_text())
+    assert doc["schema_version"] == 3
+    assert "world.gravity" in doc["cases"]["bare"]["defaults"]
+    assert "initial.angular_velocity" in doc["cases"]["bare"]["defaults"]
+    assert "no [world]: no gravity" in (tmp_path / "o" / "report.md").read_text()

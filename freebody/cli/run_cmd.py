@@ -102,7 +102,10 @@ def run(args) -> int:
         print(terminal_summary(doc["runs"], summary_width()), flush=True)  # before the reports take their time
         from ..report.render import finish_run  # fitted orders into results.json, then report.md/.html
 
+        from ..input.casefile import defaulted_keys
+
+        defaults = {pb.name: defaulted_keys(n) for pb, n in zip(problems, names)}
         doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report,
-                                  baseline=args.baseline)
+                                  baseline=args.baseline, defaults=defaults)
     print("\n" + where_to_look(out_dir, reports))
     return 1 if any(r["status"] == Status.FAILED for r in doc["runs"]) else 0

@@ -126,6 +126,15 @@ class CasePhysics:
     truth: str
     body: Body
     gravity: np.ndarray
+    defaults: tuple[str, ...] = ()  # optional case-file keys left out (results.json cases.<name>.defaults)
+
+    def lines(self) -> list[str]:
+        """The case's description, truth and the keys it left to their defaults, as report lines."""
+        out = [self.description or "(no description)", "", f"Truth: {self.truth or '?'}."]
+        if self.defaults:
+            named = [f"{k} (no [world]: no gravity)" if k == "world.gravity" else k for k in self.defaults]
+            out += ["", "Left to their defaults in the case file: " + ", ".join(named) + "."]
+        return out
 
 
 def case_record(problem, truth: str) -> dict:
@@ -140,18 +149,20 @@ def case_record(problem, truth: str) -> dict:
 def case_physics(doc: dict, case: str, problems: dict | None = None) -> CasePhysics | None:
     """The case's body and gravity: from ``problems`` (name -> Problem), else results.json's
     ``"cases"``, else the bundled case of that name; None when none of these knows the case."""
+    rec = (doc.get("cases") or {}).get(case)
+    defaults = tuple(str(k) for k in rec.get("defaults") or ()) if isinstance(rec, dict) else ()
     if problems and case in problems:
         pb = problems[case]
         from ..reference_impl.truth import truth_kind
 
-        return CasePhysics(case, pb.description, truth_kind(pb), pb.body, np.asarray(pb.gravity, float))
-    rec = (doc.get("cases") or {}).get(case)
+        return CasePhysics(case, pb.description, truth_kind(pb), pb.body, np.asarray(pb.gravity, float), defaults)
     if isinstance(rec, dict):
         try:
             body = Body(float(rec["mass"]), np.asarray(rec["inertia"], dtype=float))
             g = np.asarray(rec.get("gravity", [0.0, 0.0, 0.0]), dtype=float).reshape(3)
             if body.mass > 0 and np.all(np.isfinite(body.I_body)) and np.all(np.isfinite(g)):
-                return CasePhysics(case, str(rec.get("description", "")), str(rec.get("truth", "")), body, g)
+                return CasePhysics(case, str(rec.get("description", "")), str(rec.get("truth", "")), body, g,
+                                   defaults)
         except (KeyError, TypeError, ValueError):
             pass
     from ..input.casefile import bundled_case_paths, load_case

@@ -320,7 +320,8 @@ def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], ca
     p = []
     p.append(f'<h2 id="{anchor(case)}">Case <code>{escape(case)}</code></h2>')
     if ph is not None:
-        p.append(f"<p>{escape(ph.description)}</p><p class=\"note\">Truth: {escape(ph.truth or '?')}.</p>")
+        first, *rest = [line for line in ph.lines() if line]
+        p.append(f"<p>{escape(first)}</p>" + "".join(f'<p class="note">{escape(line)}</p>' for line in rest))
     order = {lab: i for i, lab in enumerate(rd.labels(case_runs))}
     ordered = sorted(case_runs, key=lambda r: (order[rd.label(r)], -float(r["dt"])))
     p.append("<h3>Runs</h3>" + table(*md.run_table(case_runs), status_col=2,

@@ -314,7 +314,7 @@ def case_section(case: str, runs: list[dict], convergence: list[dict],
                  pairs: list[rd.Pair] | None = None) -> list[str]:
     out = [f"## Case `{case}`", ""]
     if physics is not None:
-        out += [physics.description, "", f"Truth: {physics.truth or '?'}.", ""]
+        out += [*physics.lines(), ""]
     out += ["### Runs", "", md_table(*run_table(runs)), ""]
     bad = not_ok_lines(runs)
     if bad:

@@ -13,11 +13,13 @@ from ..run.convergence import fit_orders
 from ..results.io import write_json_atomic, write_text_atomic
 
 
-def augment(doc: dict, problems: dict | None = None) -> dict:
+def augment(doc: dict, problems: dict | None = None, defaults: dict[str, list[str]] | None = None) -> dict:
     """The results document with ``"convergence"`` (see :mod:`freebody.run.convergence`) and ``"cases"``
     (name -> description, truth, mass kg, inertia kg m^2 (3x3, COM, body frame), gravity m/s^2
     (world), ...: what a report needs to recompute L and E without the case file; the case file's
-    ``dts`` and ``duration``, and ``ran``: [{dt, steps, duration_s}] of the runs that ran)."""
+    ``dts`` and ``duration``, ``ran``: [{dt, steps, duration_s}] of the runs that ran, and
+    ``defaults``: the optional keys the case file left out, from ``defaults`` (case name -> keys,
+    :func:`freebody.input.casefile.defaulted_keys`), when given)."""
     from ..reference_impl.truth import truth_kind
 
     out = dict(doc)
@@ -25,6 +27,8 @@ def augment(doc: dict, problems: dict | None = None) -> dict:
     cases = dict(doc.get("cases") or {})
     for name, pb in (problems or {}).items():
         cases[name] = rd.case_record(pb, truth_kind(pb))
+        if defaults is not None and name in defaults:
+            cases[name]["defaults"] = list(defaults[name])
     ran: dict[str, dict] = {}
     for r in doc.get("runs") or []:  # what ran, whatever the case file's dts and duration say
         if r.get("case") in cases and isinstance(r.get("steps"), int):
@@ -94,11 +98,11 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
 
 
 def finish_run(out_dir: Path, doc: dict, problems: dict, report: bool = True,
-               baseline=None) -> tuple[dict, list[Path]]:
+               baseline=None, defaults: dict[str, list[str]] | None = None) -> tuple[dict, list[Path]]:
     """After ``freebody run``: re-write results.json (atomically) with the fitted orders and the
     cases, then write the reports (compared with ``baseline`` when given).  Returns (the document,
     the report paths written)."""
-    doc = augment(doc, problems)
+    doc = augment(doc, problems, defaults)
     write_json_atomic(Path(out_dir) / "results.json", doc)
     paths = write_reports(out_dir, doc, problems, baseline=baseline) if report else []
     return doc, paths

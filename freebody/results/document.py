@@ -1,14 +1,19 @@
-"""results.json (schema version 2) and the per-run trajectory files, written atomically.
+"""results.json (schema version 3) and the per-run trajectory files, written atomically.
 
 results.json::
 
-    {"schema_version": 2, "freebody_version", "created", "platform", "engines": {name: version},
+    {"schema_version": 3, "freebody_version", "created", "platform", "engines": {name: version},
      "incomplete": false, "runs": [RunResult.to_json(), ...], ...}
 
 Schema 2 added each run's ``experiment`` (what was simulated: :mod:`freebody.run.experiment`)
 and, in ``cases``, the time steps and durations that ran.  Schema 1 documents (and baselines) are
 still read: their runs have no ``experiment``, and ``freebody compare`` then matches runs on their
 identity and steps and says that their content could not be checked.
+
+Schema 3 added, in ``cases``, ``defaults``: the optional case-file keys a case left out and so got
+by default (e.g. ``world.gravity``: no ``[world]``, no gravity), and engine names may carry a
+version (``mujoco==3.1.6``, an engine run in an isolated environment).  Schema 2 and 1 documents
+are still read (a case without ``defaults`` says nothing about them).
 
 Renamed reference integrators (``symplectic-euler`` is now ``lie-euler``) do not change the format
 and bump no schema version: every document read, of either version, has the old names replaced by
@@ -42,8 +47,8 @@ from ..reference_impl.conventions import Trajectory
 from ..reference_impl.integrators import INTEGRATOR_ALIASES
 from .io import read_json, write_npz_atomic
 
-SCHEMA_VERSION = 2
-READABLE_SCHEMA_VERSIONS = (1, 2)  # results.json / baseline versions this freebody reads
+SCHEMA_VERSION = 3
+READABLE_SCHEMA_VERSIONS = (1, 2, 3)  # results.json / baseline versions this freebody reads
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
 
 
