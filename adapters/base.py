@@ -339,6 +339,10 @@ ENGINES: dict[str, EngineEntry] = {
     # (JAX_COMPILATION_CACHE_DIR or ~/.cache/freebody/jax) shared by every process and invocation
     "mjx": EngineEntry("jax", "freebody.adapters.mjx_adapter", "MjxAdapter",
                        "pip install 'freebody[jax]'", package="mujoco-mjx"),
+    "drake": EngineEntry("pydrake", "freebody.adapters.drake_adapter", "DrakeAdapter",
+                         "pip install 'freebody[drake]'", package="drake"),
+    "sapien": EngineEntry("sapien", "freebody.adapters.sapien_adapter", "SapienAdapter",
+                          "pip install 'freebody[sapien]'"),
 }
 
 # The engine whose runs are freebody's own reference maps: shared with scheme identification (so

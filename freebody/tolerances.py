@@ -112,6 +112,13 @@ SELFCHECK_L_DRIFT_ATOL = FLOAT64_ACCUMULATED_ROUNDOFF_REL
 # the value is the same); an RK4 engine may in addition show RK4's own error (the reference rk4's,
 # times SELFCHECK_L_DRIFT_FACTOR).
 SELFCHECK_HIGH_SPIN_RAD = 1e-9
+# Engines that offer float32 only (SAPIEN) run the checks in float32.  t = 0 read-back: float32
+# storage of values up to ~3 (eps32 1.2e-7; measured 4.8e-8).
+SELFCHECK_INITIAL_STATE_FLOAT32_ATOL = 1e-6
+# The high spin (150 rad/s, 200 steps, 30 rad) in float32: measured 2.8e-5 rad (SAPIEN pgs) and
+# 1.9e-3 (tgs, whose |w| grows ~5e-7 a step: 1.3e-4 over the run); a 100 rad/s clamp would be
+# 10 rad off.
+SELFCHECK_HIGH_SPIN_FLOAT32_RAD = 1e-2
 
 # --- engine adapters: read-back checks of the built model ----------------------------------------
 # MuJoCo.  A flat body (A + B = C exactly, e.g. diag(1, 2, 3)) with off-diagonal terms fails
@@ -127,6 +134,25 @@ DART_READBACK_RTOL = 1e-9
 # DART: a probe state read back in DART's FreeJoint coordinates matches [log R; x] and [w; v] in
 # the right frame to round-off (max abs difference); the wrong frame differs by O(1).
 DART_FRAME_PROBE_ATOL = 1e-12
+# Drake: values written in float64 and read back (mass, inertia through SpatialInertia's unit
+# inertia, gravity, step sizes, the raw coordinates through the frame-explicit pose and velocity
+# getters: a quaternion -> rotation matrix conversion), relative to max(1, |value|); measured
+# <= 4e-16.  A wrong layout (w and v swapped, a body-frame w) is O(1) off.
+DRAKE_READBACK_ATOL = 1e-12
+# Drake's continuous plant is advanced to t = (k + 1) dt; its maximum step is dt (1 + this), so
+# that (k + 1) dt - k dt, which exceeds dt by up to an ulp of t, is one step (k up to 4e9).
+DRAKE_STEP_SLACK = 1e-6
+# Trap check of the unnormalised quaternion: the adapter's reported raw norm against the norm of
+# Drake's generalized positions (the same doubles, one rounding of a square root apart) ...
+DRAKE_TRAP_NORM_RTOL = 1e-14
+# ... and the drift the check's run must show (measured 0.41: the trap is live; smaller means
+# Drake changed, and the docs with it).
+DRAKE_TRAP_NORM_DRIFT_MIN = 0.1
+# An error-controlled integrator doing more than this many derivative evaluations per simulated
+# second on a 50 rad/s spin near the intermediate axis (dt 0.01) is opt-in: implicit-euler at 1e-6
+# 3.2e5 (1.5 s of wall time per simulated second), radau3 at 1e-10 6.4e5 (3 s); the default ones
+# at most 1.9e5 (rk3 at 1e-10, 0.8 s); fixed-step rk5 700.
+DRAKE_OPT_IN_DERIVATIVES_PER_SIMULATED_SECOND = 2.5e5
 # PyBullet.  Values set through the API come back bit-exact or to a few ulps; the probe step of a
 # spin about a principal axis keeps |w| to ~1e-14 relative (the gyroscopic term of a spin about a
 # rounded principal axis), while damping 0.04 or the clamp change it by > 1e-6 at any dt.
@@ -137,6 +163,65 @@ PYBULLET_INITIAL_STATE_RTOL = 1e-9  # build() re-reads the initial state (measur
 # (relative, and absolute in units of the largest principal moment).
 PYBULLET_EIGEN_RTOL = 1e-12
 PYBULLET_EIGEN_ATOL_REL = 1e-14
+# SAPIEN (PhysX, float32 only).  Values set through the API come back as their float32 rounding
+# (relative 6e-8); the initial state read back through pack() likewise.  1e-6 allows a few
+# roundings (cmass_local_pose's quaternion is renormalised by PhysX).
+SAPIEN_READBACK_RTOL = 1e-6
+# SAPIEN's TGS solver scales |w| of a steady spin by about 1 + 5e-7 every step (measured 4.4e-7 to
+# 5.4e-7, any dt, rate, inertia and axis; PGS: below 2e-8): a float32 bias of its solver-body
+# velocities, which correlates with the quaternion's norm error after PhysX's normalisation.
+SAPIEN_TGS_SPIN_DRIFT_PER_STEP = 6e-7
+# build()'s probe step (300 rad/s about a principal axis, from linear rest): |w| keeps to float32
+# round-off and one TGS drift (measured <= 5e-7), v = h g to an ulp; the 100 rad/s clamp changes
+# |w| by 0.67, damping 0.05 by 5e-5 at dt = 1e-3 (damping is read back as well).
+SAPIEN_PROBE_RTOL = 1e-5
+# The adapter's live trap checks (SapienAdapter.trap_checks), float32 runs on both solvers, each
+# bound 10x the TGS drift over the check's steps (measured values in parentheses).
+# 150 rad/s about a principal axis, 1000 steps: | |w| / 150 - 1 | (5.3e-4); clamped: 0.33.
+SAPIEN_TRAP_SPIN_RTOL = 10 * 1000 * SAPIEN_TGS_SPIN_DRIFT_PER_STEP
+# A moving torque-free spin about the major axis, 200 steps: relative kinetic energy change
+# (1.2e-4; E ~ |w|^2: twice the drift); angular damping 0.05 takes 0.18 in 2 s.
+SAPIEN_TRAP_ENERGY_RTOL = 10 * 2 * 200 * SAPIEN_TGS_SPIN_DRIFT_PER_STEP
+# A slow drift, 100 steps: relative change of the velocities (4.1e-5); asleep they would be 0 (1).
+SAPIEN_TRAP_SLEEP_RTOL = 10 * 100 * SAPIEN_TGS_SPIN_DRIFT_PER_STEP
+# A full inertia tensor against the same body given diagonal, 100 steps at dt 0.01, non-chaotic:
+# orientation (rad) and w (relative) agree to round-off growth (2.6e-5); the diagonal part alone,
+# or an improper principal frame, is O(1) off.
+SAPIEN_TRAP_FULL_INERTIA_RAD = 1e-3
+# Free fall for 1 s: v = g t to float32 round-off, relative (7.4e-7); the default gravity: O(1).
+SAPIEN_TRAP_GRAVITY_RTOL = 1e-5
+# Brax (JAX; float32 or float64).  Mass and the inertia tensor rebuilt from Brax's principal moments
+# and frame (MuJoCo's compiler's diagonalisation) against the case's, relative to max(1, |value|):
+# float64 round-off (PLACEHOLDER) / the float32 rounding of a few products.
+BRAX_READBACK_RTOL = {"float64": 1e-12, "float32": 1e-6}
+# The adapter's live trap checks (BraxAdapter.trap_checks), float64 runs (PLACEHOLDERS).
+BRAX_TRAP_FRAME_RAD = 1e-9
+BRAX_TRAP_DAMPING_RTOL = 1e-12
+BRAX_TRAP_FULL_INERTIA_RAD = 1e-9
+BRAX_TRAP_PUSH_RTOL = 1e-2
+BRAX_TRAP_FLOAT64_RAD = 1e-11
+BRAX_TRAP_FLOAT32_MIN_RAD = 1e-9
+BRAX_TRAP_NO_GYRO_RAD = 1e-9
+BRAX_TRAP_GYRO_GAP_MIN_RAD = 0.1
+# Newton (Warp, float32 only).  Mass, inertia, COM, gravity and damping come back as their float32
+# rounding (relative 6e-8); 1e-6 allows a few roundings.
+NEWTON_READBACK_RTOL = 1e-6
+# The adapter's live trap checks (NewtonAdapter.trap_checks), float32 runs (measured values in
+# parentheses are the worst of the solvers each check runs; PLACEHOLDER until measured).
+# A moving torque-free spin about the major axis, 200 steps at dt 0.01: relative kinetic energy
+# change; angular damping 0.05 takes 0.15 in 2 s.
+NEWTON_TRAP_ENERGY_RTOL = 1e-4
+# Free flight for 1 s: |x - x0 - v0 t| / |v0 t|; read from joint_q, which semi-implicit and xpbd
+# never update: 1.
+NEWTON_TRAP_FREE_FLIGHT_RTOL = 1e-5
+# A spin about a principal axis of a rotated body, 100 steps at dt 0.01: orientation (rad) against
+# the map's exact rotation of 2 atan(h |w| / 2) a step, and w (relative); a body-frame w: O(1).
+NEWTON_TRAP_SPIN_RAD = 1e-4
+# One step of a COM force and a world couple from rest: p and L change by h f and h tau (relative);
+# a (torque, force) order or a body-frame torque: O(1).
+NEWTON_TRAP_PUSH_RTOL = 1e-4
+# Free fall for 1 s: v = g t to float32 round-off, relative; the default gravity: O(1).
+NEWTON_TRAP_GRAVITY_RTOL = 1e-5
 
 # --- tools and displays -------------------------------------------------------------------------
 # ``freebody demo``: fit convergence slopes only to errors above float64 round-off and below

@@ -14,19 +14,19 @@ import math
 
 import numpy as np
 
-from .compiled import (_put, add, cross, div, dot, jit, loads_of, mat, mat_add, mat_scale, mat_sub,
+from .compiled import (_put, add, add4, cross, div, dot, jit, loads_of, mat, mat_add, mat_scale, mat_sub,
                        matmul, matrix_from_quat, matvec, quat_from_rotvec, quat_multiply, scale,
                        scale4, semi_implicit_velocities, skew, sub, transpose, vec, wrench)
 from .conventions import Trajectory
 from .engine_maps import (BULLET_ANGULAR_MOTION_THRESHOLD, BULLET_SERIES_BELOW, BULLET_SIMD_EPSILON,
                           DART_EXPMAP_SERIES_BELOW, DEXPINV_SERIES_BELOW, ENGINE_MAPS, MJ_MINVAL,
-                          dart_log_map as _numpy_dart_log_map, principal_frame)
+                          dart_log_map as _numpy_dart_log_map, physx_principal_frame, principal_frame)
 from .lie_integrators import RK4_B
 from .problem import Problem
 from .rotations import matrix_from_quat as _numpy_matrix_from_quat, quat_conjugate
 
 __all__ = ["simulate_compiled_engine_map", "mujoco_rk4_step", "implicit_gyro_split_torque_step",
-           "explicit_gyro_truncated_exp_step"]
+           "explicit_gyro_truncated_exp_step", "explicit_gyro_rescaled_momentum_step"]
 
 _B1, _B2, _B3, _B4 = RK4_B
 
@@ -311,6 +311,156 @@ def run_dart(x, phi, v, w_b, dt, steps, M, I_b, I_inv, g, loads, out_x, out_q, o
         _put(out_w, k + 1, matvec(dart_exp_map_rot(phi), w_b))
 
 
+# --- PhysX 5 (SAPIEN) ----------------------------------------------------------------------------
+
+@jit
+def physx_integrate_rotation(q, w, h):
+    """engine_maps.physx_integrate_rotation: normalize(dq * q), w world."""
+    a2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    if a2 == 0.0:
+        return q
+    a = math.sqrt(a2)
+    s, c = math.sin(0.5 * h * a) / a, math.cos(0.5 * h * a)
+    p = add4(quat_multiply((0.0, w[0] * s, w[1] * s, w[2] * s), q), scale4(c, q))
+    return scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
+
+
+@jit
+def physx_gyroscopic_velocity(q, w, moments, h):
+    """engine_maps.physx_gyroscopic_velocity: explicit, |L_body| kept."""
+    R = matrix_from_quat(q)
+    w_b = matvec(transpose(R), w)
+    L = (moments[0] * w_b[0], moments[1] * w_b[1], moments[2] * w_b[2])
+    L_new = sub(L, scale(h, cross(w_b, L)))
+    n = math.sqrt(dot(L_new, L_new))
+    L_new = scale(math.sqrt(dot(L, L)) / n, L_new) if n > 0.0 else (0.0, 0.0, 0.0)
+    return add(w, matvec(R, sub((L_new[0] / moments[0], L_new[1] / moments[1], L_new[2] / moments[2]), w_b)))
+
+
+@jit
+def explicit_gyro_rescaled_momentum_step(k, x, q, v, w, dt, M, moments, Vt, g, loads):
+    """engine_maps.explicit_gyro_rescaled_momentum_step (PhysX); q the principal frame."""
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, matmul(R, Vt), loads)
+    v = add(v, scale(h, scale(1.0 / M, f)))
+    tau_p = matvec(transpose(R), tau)
+    w = add(w, scale(h, matvec(R, (tau_p[0] / moments[0], tau_p[1] / moments[1], tau_p[2] / moments[2]))))
+    v = add(v, scale(h, g))
+    w = physx_gyroscopic_velocity(q, w, moments, h)
+    return add(x, scale(h, v)), physx_integrate_rotation(q, w, h), v, w
+
+
+@jit
+def run_physx(x, q, v, w, dt, steps, M, moments, Vt, q_V_inv, g, loads, out_x, out_q, out_v, out_w):
+    """Rows 1..steps of x, q_body = q_principal q_V^-1 (the actor pose), v, w (world)."""
+    for k in range(steps):
+        x, q, v, w = explicit_gyro_rescaled_momentum_step(k, x, q, v, w, dt, M, moments, Vt, g, loads)
+        _put(out_x, k + 1, x)
+        _put(out_q, k + 1, quat_multiply(q, q_V_inv))
+        _put(out_v, k + 1, v)
+        _put(out_w, k + 1, w)
+
+
+# --- Drake (pydrake MultibodyPlant) --------------------------------------------------------------
+# (imported here, beside the only code that uses them)
+from .compiled import solve  # noqa: E402
+from .engine_maps import DRAKE_SEMI_IMPLICIT, DRAKE_TABLEAUS  # noqa: E402
+
+
+@jit
+def drake_time_derivatives(y, M, I_b, g, f, tau):
+    """engine_maps.drake_time_derivatives: [1/2 (0, w) q, v, I_w^-1 (tau - w x I_w w), f / M + g]
+    (13,) of Drake's state y = [q (as stored), x, w, v] (13,)."""
+    q = (y[0], y[1], y[2], y[3])
+    w = (y[7], y[8], y[9])
+    R = matrix_from_quat(q)
+    I_w = matmul(matmul(R, I_b), transpose(R))
+    qdot = scale4(0.5, quat_multiply((0.0, w[0], w[1], w[2]), q))
+    wdot = solve(I_w, sub(tau, cross(w, matvec(I_w, w))))
+    vdot = add(div(f, M), g)
+    out = np.empty(13)
+    for i in range(4):
+        out[i] = qdot[i]
+    for i in range(3):
+        out[4 + i] = y[10 + i]
+        out[7 + i] = wdot[i]
+        out[10 + i] = vdot[i]
+    return out
+
+
+@jit
+def drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b):
+    """engine_maps.drake_explicit_rk_step: A (s, s) the tableau's rows (zeros above the
+    diagonal), b (s,)."""
+    h = dt
+    f, tau = wrench(k, (y[4], y[5], y[6]), matrix_from_quat((y[0], y[1], y[2], y[3])), loads)
+    s = len(b)
+    K = np.empty((s, 13))
+    for i in range(s):
+        y_i = y.copy()
+        for j in range(i):
+            if A[i, j] != 0.0:
+                c = h * A[i, j]
+                for n in range(13):
+                    y_i[n] = y_i[n] + c * K[j, n]
+        K[i] = drake_time_derivatives(y_i, M, I_b, g, f, tau)
+    out = y.copy()
+    for i in range(s):
+        if b[i] != 0.0:
+            c = h * b[i]
+            for n in range(13):
+                out[n] = out[n] + c * K[i, n]
+    return out
+
+
+@jit
+def drake_semi_explicit_euler_step(k, y, dt, M, I_b, g, loads):
+    """engine_maps.drake_semi_explicit_euler_step (Drake's discrete plant)."""
+    h = dt
+    q = (y[0], y[1], y[2], y[3])
+    f, tau = wrench(k, (y[4], y[5], y[6]), matrix_from_quat(q), loads)
+    d = drake_time_derivatives(y, M, I_b, g, f, tau)
+    out = np.empty(13)
+    for i in range(3):
+        out[7 + i] = y[7 + i] + h * d[7 + i]
+        out[10 + i] = y[10 + i] + h * d[10 + i]
+        out[4 + i] = y[4 + i] + h * out[10 + i]
+    dq = scale4(0.5, quat_multiply((0.0, out[7], out[8], out[9]), q))
+    for i in range(4):
+        out[i] = q[i] + h * dq[i]
+    return out
+
+
+@jit
+def run_drake(y, dt, steps, M, I_b, g, loads, A, b, semi, out_x, out_q, out_v, out_w):
+    """Rows 1..steps of x, q / |q|, v, w (world) from Drake's state y = [q, x, w, v]."""
+    for k in range(steps):
+        if semi:
+            y = drake_semi_explicit_euler_step(k, y, dt, M, I_b, g, loads)
+        else:
+            y = drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b)
+        n = math.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3])
+        for i in range(4):
+            out_q[k + 1, i] = y[i] / n
+        for i in range(3):
+            out_x[k + 1, i] = y[4 + i]
+            out_w[k + 1, i] = y[7 + i]
+            out_v[k + 1, i] = y[10 + i]
+
+
+def drake_tableau_arrays(name: str) -> tuple[np.ndarray, np.ndarray]:
+    """DRAKE_TABLEAUS[name] as (A (s, s), b (s,)) float64 arrays for run_drake (a dummy for the
+    semi-implicit map, which has none)."""
+    if name == DRAKE_SEMI_IMPLICIT:
+        return np.zeros((1, 1)), np.ones(1)
+    rows, b = DRAKE_TABLEAUS[name]
+    A = np.zeros((len(b), len(b)))
+    for i, row in enumerate(rows):
+        A[i, :len(row)] = row
+    return A, np.array(b, dtype=float)
+
+
 # --- from a Problem --------------------------------------------------------------------------------
 
 def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: int) -> Trajectory:
@@ -332,6 +482,16 @@ def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: 
         run_mujoco_rk4(vec(x), vec(q), vec(v), vec(w_b), dt, steps, M, mat(I_b), mat(I_inv), vec(g), loads,
                        rkmk, rkmk, out.position, out.quaternion_wxyz, out.linear_velocity,
                        out.angular_velocity)
+    elif name == "explicit-gyro-rescaled-momentum":
+        moments, V, q_V = physx_principal_frame(I_b)
+        run_physx(vec(x), vec(_numpy_qmul(q, q_V)), vec(v), vec(w), dt, steps, M, vec(moments), mat(V.T),
+                  vec(quat_conjugate(q_V)), vec(g), loads, out.position, out.quaternion_wxyz,
+                  out.linear_velocity, out.angular_velocity)
+    elif name == DRAKE_SEMI_IMPLICIT or name in DRAKE_TABLEAUS:
+        A, b = drake_tableau_arrays(name)
+        run_drake(np.concatenate([q, x, w, v]), dt, steps, M, mat(I_b), vec(g), loads, A, b,
+                  name == DRAKE_SEMI_IMPLICIT, out.position, out.quaternion_wxyz, out.linear_velocity,
+                  out.angular_velocity)
     elif name == "implicit-gyro-split-torque":
         moments, V, q_V = principal_frame(I_b)
         B = bullet_matrix_from_quat(vec(_numpy_qmul(q, q_V)))

@@ -23,6 +23,15 @@ Maps (``ENGINE_MAPS[name]``):
   explicit gyroscopic term (reference ``semi-implicit-explicit-gyro``), but the orientation kept as
   DART's FreeJoint rotation vector and re-formed each step by DART's ``expMapRot``, whose series
   below 1e-3 rad, I + [phi] + [phi]^2 / 2, is not a rotation (an error of |phi|^3 / 6).
+- ``explicit-gyro-rescaled-momentum`` (PhysX 5 as SAPIEN drives it, ``pgs`` and ``tgs``): semi-implicit
+  Euler whose explicit gyroscopic step, taken after the torque impulse in the principal frame,
+  rescales the body momentum to its old length; the world-frame exponential map.
+- ``quat-rate-semi-implicit``, ``quat-rate-euler``, ``quat-rate-rk2``, ``quat-rate-rk3``,
+  ``quat-rate-bs3``, ``quat-rate-rk5`` (Drake 1.51: the discrete MultibodyPlant and
+  ``semi_explicit_euler``; ``explicit_euler``, ``runge_kutta2``, ``runge_kutta3``,
+  ``bogacki_shampine3``, ``runge_kutta5`` in fixed-step mode): generic explicit schemes on Drake's
+  state [q, x, w, v] with w in the world frame and the quaternion integrated as a vector through
+  its rate 1/2 (0, w) q, never renormalised (the rotation is that of q / |q|).
 
 Loads, as the adapters apply them (``adapters/loads.py``): the wrench of step k (force (3,) N world,
 torque about the COM (3,) N m world) is evaluated ONCE, at the state at the start of step k (torque
@@ -55,7 +64,10 @@ __all__ = ["ENGINE_MAPS", "simulate_engine_map", "rkmk4_body_step", "rk4_body_ex
            "implicit_gyro_split_torque_step", "explicit_gyro_truncated_exp_step", "dexpinv",
            "mujoco_quat_integrate", "bullet_integrate_rotation", "bullet_matrix_from_quat",
            "bullet_quat_from_matrix", "dart_exp_map_rot", "dart_log_map",
-           "principal_frame"]
+           "principal_frame", "explicit_gyro_rescaled_momentum_step", "physx_principal_frame",
+           "physx_gyroscopic_velocity", "physx_integrate_rotation",
+           "DRAKE_TABLEAUS", "DRAKE_SEMI_IMPLICIT", "drake_time_derivatives", "drake_explicit_rk_step",
+           "drake_semi_explicit_euler_step"]
 
 # MuJoCo's mjMINVAL (mjmodel.h): below it a norm counts as zero; a quaternion whose norm is within
 # it of 1 is not rescaled (mju_normalize4).
@@ -417,6 +429,325 @@ def explicit_gyro_truncated_exp_step(k: int, x, phi, v, w_b, dt: float, M: float
     return x, phi, v, w_b
 
 
+# --- PhysX 5 (SAPIEN) ----------------------------------------------------------------------------
+
+def physx_principal_frame(I_body: np.ndarray):
+    """As the SAPIEN adapter gives PhysX the body: (moments (3,) kg m^2, V (3, 3) principal axes as
+    columns in the body frame, q_V (4,) wxyz).  A diagonal I_body keeps its moments in its order and
+    V = 1 (no rounding from an eigen-decomposition); otherwise :func:`principal_frame` (numpy eigh,
+    V proper)."""
+    I_body = np.asarray(I_body, dtype=float)
+    if not np.any(I_body - np.diag(np.diag(I_body))):
+        return np.diag(I_body).copy(), np.eye(3), np.array([1.0, 0.0, 0.0, 0.0])
+    return principal_frame(I_body)
+
+
+def physx_integrate_rotation(q: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:
+    """The rotation update of PhysX's integrateCore (``DyBodyCoreIntegrator.h``; TGS's
+    integrateCoreStep and copyBackBodies compose the same rotation): q+ = normalize(dq * q) with
+    dq = (cos(h |w| / 2), w sin(h |w| / 2) / |w|), w (3,) rad/s WORLD frame, q (4,) wxyz; q as it
+    is when |w| = 0.  (PGS also caps |w| at 1e7 rad/s here: not modelled, far beyond any run.)"""
+    a2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    if a2 == 0.0:
+        return q
+    a = np.sqrt(a2)
+    s, c = np.sin(0.5 * h * a) / a, np.cos(0.5 * h * a)
+    p = quat_multiply(np.array([0.0, w[0] * s, w[1] * s, w[2] * s]), q) + c * q
+    return p * (1.0 / np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]))
+
+
+def physx_gyroscopic_velocity(q: np.ndarray, w: np.ndarray, moments: np.ndarray, h: float) -> np.ndarray:
+    """PhysX's gyroscopic term (``copyToSolverBodyData``, ``DyRigidBodyToSolverBody.cpp``; TGS:
+    ``copyToSolverBodyDataStep``), PxRigidBodyFlag::eENABLE_GYROSCOPIC_FORCES: in the principal
+    frame, w_b = R^T w, L = I w_b, L' = L - h w_b x L rescaled to |L| (0 if L' = 0), and
+    w+ = w + R (I^-1 L' - w_b).  q (4,) wxyz principal frame -> world, w (3,) rad/s world,
+    moments (3,) kg m^2.  Explicit Euler on Euler's equations, with the body momentum's length kept."""
+    R = matrix_from_quat(q)
+    w_b = R.T @ w
+    L = moments * w_b
+    L_new = L - h * np.cross(w_b, L)
+    n = np.sqrt(L_new @ L_new)
+    L_new = L_new * (np.sqrt(L @ L) / n) if n > 0.0 else np.zeros(3)
+    return w + R @ (L_new / moments - w_b)
+
+
+def explicit_gyro_rescaled_momentum_step(k: int, x, q, v, w, dt: float, M: float, moments, Vt, g,
+                                         wrench: Wrench):
+    """``explicit-gyro-rescaled-momentum``: PhysX 5's step of a lone rigid dynamic body, PGS and TGS
+    alike (SAPIEN ``pgs``/``tgs``; PhysX 5.3.1, verified on SAPIEN 3.0.3 in float32).
+
+    One ``PxScene::simulate`` of a body with no constraints, zero damping, no velocity clamp:
+      ``BodySim::updateForces``: the applied force and torque, stored as accelerations when added
+        (f / M and I_w^-1 tau, I_w^-1 = R diag(1/I) R^T at the pose of the call: the step's
+        start), become velocity changes v += h f / M, w += h I_w^-1 tau;
+      ``bodyCoreComputeUnconstrainedVelocity``: v += h g;
+      the gyroscopic term, :func:`physx_gyroscopic_velocity`;
+      ``integrateCore``: x+ = x + h v+, q+ = :func:`physx_integrate_rotation` (q, w+, h).
+    The reference ``semi-implicit-explicit-gyro`` uses w_b at the step's start in the gyroscopic
+    term and does not rescale L': torque-free the two differ by the rescaling, a factor
+    1 / sqrt(1 + h^2 |w_b x L|^2 / |L|^2) per step, which keeps |L| and bounds the spin where the
+    plain explicit term blows up.
+
+    State in PhysX's variables: x (3,) m COM world; q (4,) wxyz the PRINCIPAL frame -> world
+    (body2World; R_body = R(q) V^T); v (3,) m/s world; w (3,) rad/s world.  moments (3,) kg m^2,
+    Vt (3, 3) = V^T, g (3,) m/s^2; wrench(k, x, R_body) at the step's start.
+    """
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R @ Vt)
+    v = v + h * (f * (1.0 / M))
+    w = w + h * (R @ ((R.T @ tau) / moments))
+    v = v + h * g
+    w = physx_gyroscopic_velocity(q, w, moments, h)
+    return x + h * v, physx_integrate_rotation(q, w, h), v, w
+
+
+# --- Drake (pydrake MultibodyPlant) --------------------------------------------------------------
+
+# The Butcher tableaus of Drake's explicit integrators (``systems/analysis``), by map name:
+# (A as its rows below the diagonal, b).  Stage i starts from y + h sum_j A[i][j] K_j; the step is
+# y + h sum_i b_i K_i (the propagated solution; the embedded error estimates are not used).
+DRAKE_TABLEAUS: dict[str, tuple[tuple[tuple[float, ...], ...], tuple[float, ...]]] = {
+    # ExplicitEulerIntegrator
+    "quat-rate-euler": (((),), (1.0,)),
+    # RungeKutta2Integrator: Heun's method (the explicit trapezoid rule)
+    "quat-rate-rk2": (((), (1.0,)), (0.5, 0.5)),
+    # RungeKutta3Integrator: Kutta's third-order method (its 2nd-order midpoint only estimates errors)
+    "quat-rate-rk3": (((), (0.5,), (-1.0, 2.0)), (1.0 / 6.0, 2.0 / 3.0, 1.0 / 6.0)),
+    # BogackiShampine3Integrator: Bogacki-Shampine 3(2), 4 stages (the 4th serves the error estimate)
+    "quat-rate-bs3": (((), (0.5,), (0.0, 0.75), (2.0 / 9.0, 1.0 / 3.0, 4.0 / 9.0)),
+                      (2.0 / 9.0, 1.0 / 3.0, 4.0 / 9.0, 0.0)),
+    # RungeKutta5Integrator: Dormand-Prince 5(4), the fifth-order solution propagated
+    "quat-rate-rk5": (((), (1.0 / 5.0,), (3.0 / 40.0, 9.0 / 40.0),
+                       (44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0),
+                       (19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0),
+                       (9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0,
+                        -5103.0 / 18656.0),
+                       (35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0,
+                        11.0 / 84.0)),
+                      (35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0,
+                       11.0 / 84.0, 0.0)),
+}
+# Drake's discrete MultibodyPlant (time_step > 0) and its SemiExplicitEulerIntegrator: one map.
+DRAKE_SEMI_IMPLICIT = "quat-rate-semi-implicit"
+
+
+def drake_time_derivatives(y: np.ndarray, M: float, I_b: np.ndarray, g: np.ndarray,
+                           f: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """MultibodyPlant's time derivatives (13,) of a lone body on its QuaternionFloatingJoint
+    (Drake 1.51: ``QuaternionFloatingMobilizer``), body frame origin at the COM.
+
+    y (13,): Drake's state [q (4) wxyz AS STORED (never renormalised), x (3) m world, w (3) rad/s
+    world, v (3) m/s world].  f (3,) N, tau (3,) N m about the COM, world: the applied spatial
+    force, held over the step.  Returns [qdot, xdot, wdot, vdot]:
+
+    - qdot = N(q) w = 1/2 (0, w) * q (``AngularVelocityToQuaternionRateMatrix``): linear in q, so a
+      stored q of norm s stays of norm s under the exact flow, and a scheme's step scales it;
+    - xdot = v;
+    - wdot = I_w^-1 (tau - w x I_w w), I_w = R I_b R^T with R the rotation of q / |q| (Drake's
+      RotationMatrix of a quaternion divides by |q|^2): the forward dynamics of M(q) vdot = tau_ext
+      - C(q, v) v for the mass matrix diag(I_w, M 1) of a body whose origin is its COM;
+    - vdot = f / M + g.
+    """
+    q, w = y[0:4], y[7:10]
+    R = matrix_from_quat(q)
+    I_w = R @ I_b @ R.T
+    qdot = 0.5 * quat_multiply(np.array([0.0, w[0], w[1], w[2]]), q)
+    wdot = np.linalg.solve(I_w, tau - np.cross(w, I_w @ w))
+    return np.concatenate([qdot, y[10:13], wdot, f / M + g])
+
+
+def drake_explicit_rk_step(k: int, y: np.ndarray, dt: float, M: float, I_b, g, wrench: Wrench,
+                           tableau) -> np.ndarray:
+    """``quat-rate-euler``, ``-rk2``, ``-rk3``, ``-bs3``, ``-rk5``: one fixed step of Drake's explicit
+    Runge-Kutta integrators on a continuous MultibodyPlant (time_step 0), verified on Drake 1.51.1.
+
+    Classic explicit Runge-Kutta on Drake's own state y (13,) (see :func:`drake_time_derivatives`):
+    stage i's state y + h sum_j A_ij K_j (added term by term, j ascending), K_i its derivatives,
+    the step y + h sum_i b_i K_i.  The quaternion is integrated as a vector in R^4 through its rate
+    1/2 (0, w) q and never renormalised (Drake's integrators are generic ODE solvers): the stored
+    norm drifts (explicit Euler: by sqrt(1 + h^2 |w|^2 / 4) a step) while the rotation is that of
+    q / |q|.  The wrench of step k is evaluated once, at the step's start (the adapter fixes the
+    applied-force input port before each step), and is the same for every stage.  Sources:
+    ``explicit_euler_integrator.h``, ``runge_kutta2_integrator.h``, ``runge_kutta3_integrator.h``,
+    ``bogacki_shampine3_integrator.h``, ``runge_kutta5_integrator.h`` (``systems/analysis``).
+    """
+    A, b = tableau
+    h = dt
+    f, tau = wrench(k, y[4:7], matrix_from_quat(y[0:4]))
+    K = []
+    for i in range(len(b)):
+        y_i = y
+        for j, a in enumerate(A[i]):
+            if a != 0.0:
+                y_i = y_i + (h * a) * K[j]
+        K.append(drake_time_derivatives(y_i, M, I_b, g, f, tau))
+    out = y
+    for b_i, K_i in zip(b, K):
+        if b_i != 0.0:
+            out = out + (h * b_i) * K_i
+    return out
+
+
+def drake_semi_explicit_euler_step(k: int, y: np.ndarray, dt: float, M: float, I_b, g,
+                                   wrench: Wrench) -> np.ndarray:
+    """``quat-rate-semi-implicit``: Drake's discrete MultibodyPlant step of a lone free body (any
+    discrete contact solver: with no contact SAP and TAMSI both return the free-motion velocities)
+    and its SemiExplicitEulerIntegrator (continuous plant, fixed step); verified on Drake 1.51.1.
+
+    Velocities first, then positions with the new velocities: (w, v)+ = (w, v) + h (wdot, vdot) at
+    the step's start, q+ = q + h 1/2 (0, w+) q, x+ = x + h v+.  The quaternion is never
+    renormalised: its stored norm grows by sqrt(1 + h^2 |w+|^2 / 4) a step (1.41 after 10 s of
+    dzhanibekov at dt 0.01), while the rotation is that of q / |q|.  Unlike the reference
+    ``semi-implicit-explicit-gyro`` (q Exp(h w_b+)) the rotation of a step is 2 atan(h |w+| / 2),
+    not h |w+|.  Sources: ``DiscreteUpdateManager``/``SapDriver`` (q_next = q + h N(q) v_next) and
+    ``semi_explicit_euler_integrator.h``.  y (13,) as :func:`drake_time_derivatives`.
+    """
+    h = dt
+    f, tau = wrench(k, y[4:7], matrix_from_quat(y[0:4]))
+    d = drake_time_derivatives(y, M, I_b, g, f, tau)
+    w = y[7:10] + h * d[7:10]
+    v = y[10:13] + h * d[10:13]
+    q = y[0:4] + h * (0.5 * quat_multiply(np.array([0.0, w[0], w[1], w[2]]), y[0:4]))
+    return np.concatenate([q, y[4:7] + h * v, w, v])
+
+
+# --- Newton 1.8 (Warp): SolverSteel, SolverVBD, SolverKamino --------------------------------------
+# (SolverSemiImplicit, SolverFeatherstone and SolverXPBD step a lone body by Drake's discrete map,
+# ``quat-rate-semi-implicit``: their renormalised q turns as Drake's unnormalised one does.)
+
+# Steel's gyroscopic update (``_gyroscopic_velocity``, newton/_src/solvers/steel/kernels.py): at most
+# this many microsteps a step, this many fixed-point iterations a microstep, stopped once the
+# iterate's change delta has delta . A delta <= STEEL_GYRO_ENERGY_RTOL u . A u.
+STEEL_GYRO_MAX_MICROSTEPS = 32
+STEEL_GYRO_ITERATIONS = 8
+STEEL_GYRO_ENERGY_RTOL = 1.0e-12
+# Kamino's quat_exp (kamino/_src/core/math.py) takes the series (1, v / 2) below float32's epsilon.
+KAMINO_EXP_SERIES_BELOW = float(np.finfo(np.float32).eps)
+
+
+def newton_quat_rate_integrate(q: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:
+    """Newton's orientation update (``integrate_rigid_body`` of SolverSemiImplicit, SolverXPBD and
+    SolverVBD; Featherstone's and Steel's ``jcalc_integrate`` of a FREE joint): q+ = normalize(q +
+    h 1/2 (0, w) q), w (3,) rad/s WORLD frame, q (4,) wxyz.  A step turns by 2 atan(h |w| / 2)."""
+    p = q + (0.5 * h) * quat_multiply(np.array([0.0, w[0], w[1], w[2]]), q)
+    return p * (1.0 / np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]))
+
+
+def steel_gyroscopic_velocity(I_b: np.ndarray, u: np.ndarray, h: float) -> np.ndarray:
+    """Steel's ``_gyroscopic_velocity``: the body rate after the gyroscopic part of a step, by
+    energy-preserving Cayley updates (implicit midpoint on Euler's equations).
+
+    u (3,) rad/s BODY frame: the rate after the torque impulse, w_b + h I^-1 tau_b (Steel's
+    predictor with its explicit gyroscopic kick taken out again).  With A = I_b / max diag(I_b)
+    (Steel's Cholesky-rebuilt effective inertia, equal to I_b with no armature) the step is cut into
+    m = clamp(ceil(2 h sqrt(u.A u tr A^-1)), 1, 32) microsteps of h / m; each solves
+    (A - S) w = (A + S) u, S = (h / 2m) [A (u + w) / 2]x, by fixed-point iteration from w = u (at
+    most 8 iterations, stopped when the change delta has delta.A delta <= 1e-12 u.A u).  Every
+    iterate keeps w.A w = u.A u (a Cayley transform): the kinetic energy of the rotation is kept,
+    and the converged w is the implicit midpoint rule A (w - u) / h_m = (A w_mid) x w_mid."""
+    scale = max(I_b[0, 0], I_b[1, 1], I_b[2, 2])
+    A = I_b / scale
+    speed = np.sqrt(max(float(u @ A @ u) * float(np.trace(np.linalg.inv(A))), 0.0))
+    m = int(min(max(math.ceil(2.0 * abs(h) * speed), 1), STEEL_GYRO_MAX_MICROSTEPS))
+    h_m = h / m
+    w = u
+    for _ in range(m):
+        u = w
+        energy = u @ A @ u
+        for _ in range(STEEL_GYRO_ITERATIONS):
+            S = (0.5 * h_m) * skew(A @ (0.5 * (u + w)))
+            candidate = np.linalg.solve(A - S, (A + S) @ u)
+            delta = candidate - w
+            w = candidate
+            if delta @ A @ delta <= STEEL_GYRO_ENERGY_RTOL * energy:
+                break
+    return w
+
+
+def quat_rate_cayley_gyro_step(k: int, x, q, v, w, dt: float, M: float, I_b, I_inv, g, wrench: Wrench):
+    """``quat-rate-cayley-gyro``: Newton 1.8 ``SolverSteel`` on a lone FREE body (verified on
+    Newton 1.8.0 in float32; ``jcalc_integrate`` and ``apply_free_root_velocity_corrections`` in
+    newton/_src/solvers/steel/kernels.py, no constraint rows, damping set to 0).
+
+    Drake's discrete map (``quat-rate-semi-implicit``) with the explicit gyroscopic kick replaced:
+    v+ = v + h (f/M + g); in the body frame at the step's start, u = w_b + h I^-1 tau_b, then
+    w_b+ = :func:`steel_gyroscopic_velocity` (I_b, u, h) (energy-preserving implicit midpoint);
+    w+ = R w_b+; x+ = x + h v+; q+ = :func:`newton_quat_rate_integrate` (q, w+, h).  Torque-free
+    the rotational kinetic energy is kept to round-off.  State: x (3,) m COM world, q (4,) wxyz
+    body -> world, v (3,) m/s world, w (3,) rad/s world."""
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R)
+    v = v + h * (f / M + g)
+    u = R.T @ w + h * (I_inv @ (R.T @ tau))
+    w = R @ steel_gyroscopic_velocity(I_b, u, h)
+    return x + h * v, newton_quat_rate_integrate(q, w, h), v, w
+
+
+def quat_rate_pose_velocity_step(k: int, x, q, v, w, dt: float, M: float, I_b, I_inv, g, wrench: Wrench):
+    """``quat-rate-pose-velocity``: Newton 1.8 ``SolverVBD`` on a lone free body (verified on Newton
+    1.8.0 in float32; ``forward_step_rigid_bodies`` and ``update_body_velocity`` in
+    newton/_src/solvers/vbd/rigid_vbd_kernels.py, an AVBD solve with no rows in between).
+
+    The pose of Drake's discrete map (``quat-rate-semi-implicit``, as SolverSemiImplicit forms it:
+    v' = v + h (f/M + g), w_b' = w_b + h I^-1 (tau_b - w_b x I w_b), x+ = x + h v', q+ = normalize(q
+    + h 1/2 (0, w') q)), then the velocities re-derived from the poses as VBD does: v+ = (x+ - x) /
+    h = v' and w+ = Log(q+ q^-1) / h, the rotation vector of the step's turn over h.  That turn is
+    2 atan(h |w'| / 2) about w', so w+ = w' 2 atan(h |w'| / 2) / (h |w'|): every step shortens the
+    spin by about (h |w'|)^2 / 12, which drains the rotational energy.  (Formed here in closed form;
+    the engine's float32 finite differences round far worse.)  State as :func:`quat_rate_cayley_gyro_step`."""
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R)
+    v = v + h * (f / M + g)
+    w_b = R.T @ w
+    w = R @ (w_b + h * (I_inv @ (R.T @ tau - np.cross(w_b, I_b @ w_b))))
+    q_next = newton_quat_rate_integrate(q, w, h)
+    a = h * np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    if a > 0.0:
+        w = w * (2.0 * math.atan(0.5 * a) / a)
+    return x + h * v, q_next, v, w
+
+
+def kamino_quat_exp(phi: np.ndarray) -> np.ndarray:
+    """Kamino's ``quat_exp``: the unit quaternion (4,) wxyz of a rotation vector phi (3,) rad,
+    (cos(|phi|/2), sin(|phi|/2) phi / |phi|); (1, phi / 2) (not normalised) at or below
+    KAMINO_EXP_SERIES_BELOW."""
+    n = np.sqrt(phi @ phi)
+    if n > KAMINO_EXP_SERIES_BELOW:
+        s = math.sin(0.5 * n) / n
+        return np.array([math.cos(0.5 * n), s * phi[0], s * phi[1], s * phi[2]])
+    return np.array([1.0, 0.5 * phi[0], 0.5 * phi[1], 0.5 * phi[2]])
+
+
+def explicit_gyro_rescaled_torque_last_step(k: int, x, q, v, w, dt: float, M: float, I_b, I_inv, g,
+                                            wrench: Wrench):
+    """``explicit-gyro-rescaled-torque-last``: Newton 1.8 ``SolverKamino`` (integrator "euler") on a
+    lone free body (verified on Newton 1.8.0 in float32; ``euler_semi_implicit_with_logmap``,
+    ``compute_body_twist_update_with_eom``, ``compute_gyroscopic_torque`` in
+    newton/_src/solvers/kamino/_src/, no constraints, angular_velocity_damping 0).
+
+    In the world frame with I_w = R I_b R^T at the step's start: L = I_w w, L' = L - h w x L
+    rescaled to |L| (0 if L' = 0); w+ = w + h I_w^-1 ((L' - L) / h + tau); v+ = v + h (g + f/M);
+    x+ = x + h v+; q+ = Exp(h w+) q (:func:`kamino_quat_exp`, not renormalised).  Torque-free this
+    is PhysX's map (``explicit-gyro-rescaled-momentum``: the same rescaled explicit step of L,
+    formed in the principal frame); under a torque PhysX adds the impulse first and takes the
+    gyroscopic step on the result, Kamino takes the gyroscopic step from the step's start and adds
+    the impulse last.  State as :func:`quat_rate_cayley_gyro_step`."""
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R)
+    I_w = R @ I_b @ R.T
+    L = I_w @ w
+    L_new = L - h * np.cross(w, L)
+    n = np.sqrt(L_new @ L_new)
+    L_new = L_new * (np.sqrt(L @ L) / n) if n > 0.0 else np.zeros(3)
+    v = v + h * (g + f / M)
+    w = w + h * ((R @ I_inv @ R.T) @ ((L_new - L) / h + tau))
+    return x + h * v, quat_multiply(kamino_quat_exp(h * w), q), v, w
+
+
 # --- whole runs -----------------------------------------------------------------------------------
 
 def _start(problem: Problem):
@@ -478,12 +809,72 @@ def _simulate_dart(problem: Problem, dt: float, steps: int) -> Trajectory:
     return out
 
 
+def _simulate_physx(problem: Problem, dt: float, steps: int) -> Trajectory:
+    M, I_b, _, x, q, v, w, g = _start(problem)
+    wrench = wrench_function(problem, dt)
+    moments, V, q_V = physx_principal_frame(I_b)
+    q_V_inv = quat_conjugate(q_V)
+    q_p = quat_multiply(q, q_V)  # setGlobalPose: body2World = actor2World * cmassLocalPose
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
+    for k in range(steps):
+        x, q_p, v, w = explicit_gyro_rescaled_momentum_step(k, x, q_p, v, w, dt, M, moments, V.T, g, wrench)
+        out.position[k + 1], out.linear_velocity[k + 1], out.angular_velocity[k + 1] = x, v, w
+        out.quaternion_wxyz[k + 1] = quat_multiply(q_p, q_V_inv)  # the actor pose SAPIEN reports
+    out.t[:] = np.arange(steps + 1) * dt
+    return out
+
+
+def _simulate_drake(problem: Problem, dt: float, steps: int, name: str) -> Trajectory:
+    """A Drake map on Drake's state y = [q, x, w, v] from the case's state as written (q not
+    renormalised); the trajectory holds q / |q| as the adapter reads it (the stored norm drifts)."""
+    M, I_b, _, x, q, v, w, g = _start(problem)
+    wrench = wrench_function(problem, dt)
+    y = np.concatenate([q, x, w, v])
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
+    for k in range(steps):
+        if name == DRAKE_SEMI_IMPLICIT:
+            y = drake_semi_explicit_euler_step(k, y, dt, M, I_b, g, wrench)
+        else:
+            y = drake_explicit_rk_step(k, y, dt, M, I_b, g, wrench, DRAKE_TABLEAUS[name])
+        out.quaternion_wxyz[k + 1] = y[0:4] / np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3])
+        out.position[k + 1], out.angular_velocity[k + 1], out.linear_velocity[k + 1] = y[4:7], y[7:10], y[10:13]
+    out.t[:] = np.arange(steps + 1) * dt
+    return out
+
+
+# The Newton maps' steps on (x, q, v, w) in canonical variables (q body -> world, w world), by name
+NEWTON_STEPS = {"quat-rate-cayley-gyro": quat_rate_cayley_gyro_step,
+                "quat-rate-pose-velocity": quat_rate_pose_velocity_step,
+                "explicit-gyro-rescaled-torque-last": explicit_gyro_rescaled_torque_last_step}
+
+
+def _simulate_newton(problem: Problem, dt: float, steps: int, name: str) -> Trajectory:
+    """A Newton map from the case's state as written (q not renormalised, as the adapter writes it)."""
+    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    wrench = wrench_function(problem, dt)
+    step = NEWTON_STEPS[name]
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
+    for k in range(steps):
+        x, q, v, w = step(k, x, q, v, w, dt, M, I_b, I_inv, g, wrench)
+        out.position[k + 1], out.quaternion_wxyz[k + 1] = x, q
+        out.linear_velocity[k + 1], out.angular_velocity[k + 1] = v, w
+    out.t[:] = np.arange(steps + 1) * dt
+    return out
+
+
 # Compiled kernel of each map (compiled_engine_maps.simulate_compiled_engine_map's switch)
 _NUMPY_RUNS = {
     "rkmk4-body": lambda pb, dt, n: _simulate_mujoco_rk4(pb, dt, n, munthe_kaas=True),
     "rk4-body-exp": lambda pb, dt, n: _simulate_mujoco_rk4(pb, dt, n, munthe_kaas=False),
     "implicit-gyro-split-torque": _simulate_bullet_maximal,
     "explicit-gyro-truncated-exp": _simulate_dart,
+    **{name: (lambda pb, dt, n, name=name: _simulate_drake(pb, dt, n, name))
+       for name in (DRAKE_SEMI_IMPLICIT, *DRAKE_TABLEAUS)},
+    "explicit-gyro-rescaled-momentum": _simulate_physx,
+    **{name: (lambda pb, dt, n, name=name: _simulate_newton(pb, dt, n, name)) for name in NEWTON_STEPS},
 }
 
 # The engine-equivalent maps, by name: candidates for scheme identification beside the reference
@@ -503,6 +894,38 @@ ENGINE_MAPS: dict[str, Integrator] = {
         Integrator("explicit-gyro-truncated-exp", 1, False,
                    "semi-implicit Euler, explicit gyroscopic term, DART's rotation-vector positions "
                    "and truncated expMapRot (DART 6.20)", _NUMPY_RUNS["explicit-gyro-truncated-exp"]),
+        Integrator("explicit-gyro-rescaled-momentum", 1, False,
+                   "semi-implicit Euler, explicit gyroscopic term with |L_body| rescaled, world exp map "
+                   "(PhysX 5 / SAPIEN 3.0, PGS and TGS)", _NUMPY_RUNS["explicit-gyro-rescaled-momentum"]),
+        Integrator(DRAKE_SEMI_IMPLICIT, 1, False,
+                   "semi-implicit Euler on world w, quaternion rate 1/2 (0, w) q, never renormalised "
+                   "(Drake 1.51 discrete plant, semi_explicit_euler)", _NUMPY_RUNS[DRAKE_SEMI_IMPLICIT]),
+        Integrator("quat-rate-euler", 1, False,
+                   "explicit Euler on Drake's (q, x, w, v), quaternion never renormalised "
+                   "(Drake 1.51 explicit_euler)", _NUMPY_RUNS["quat-rate-euler"]),
+        Integrator("quat-rate-rk2", 2, False,
+                   "Heun (explicit trapezoid) on Drake's (q, x, w, v), quaternion never renormalised "
+                   "(Drake 1.51 runge_kutta2)", _NUMPY_RUNS["quat-rate-rk2"]),
+        Integrator("quat-rate-rk3", 3, False,
+                   "Kutta's RK3 on Drake's (q, x, w, v), quaternion never renormalised "
+                   "(Drake 1.51 runge_kutta3, fixed step)", _NUMPY_RUNS["quat-rate-rk3"]),
+        Integrator("quat-rate-bs3", 3, False,
+                   "Bogacki-Shampine 3 on Drake's (q, x, w, v), quaternion never renormalised "
+                   "(Drake 1.51 bogacki_shampine3, fixed step)", _NUMPY_RUNS["quat-rate-bs3"]),
+        Integrator("quat-rate-rk5", 5, False,
+                   "Dormand-Prince 5 on Drake's (q, x, w, v), quaternion never renormalised "
+                   "(Drake 1.51 runge_kutta5, fixed step)", _NUMPY_RUNS["quat-rate-rk5"]),
+        Integrator("quat-rate-cayley-gyro", 1, False,
+                   "semi-implicit Euler on world w, gyroscopic part by energy-preserving Cayley "
+                   "(implicit-midpoint) microsteps, q + h/2 (0, w) q renormalised (Newton 1.8 Steel)",
+                   _NUMPY_RUNS["quat-rate-cayley-gyro"]),
+        Integrator("quat-rate-pose-velocity", 1, False,
+                   "the pose of quat-rate-semi-implicit, velocities re-derived from the poses: "
+                   "w = Log(q+ q^-1) / h (Newton 1.8 VBD)", _NUMPY_RUNS["quat-rate-pose-velocity"]),
+        Integrator("explicit-gyro-rescaled-torque-last", 1, False,
+                   "semi-implicit Euler, explicit gyroscopic step of L = I_w w rescaled to |L| from "
+                   "the step's start, torque impulse after it, world exp map (Newton 1.8 Kamino)",
+                   _NUMPY_RUNS["explicit-gyro-rescaled-torque-last"]),
     ]
 }
 

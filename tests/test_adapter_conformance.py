@@ -19,6 +19,9 @@ Checked, in the canonical convention (``reference_impl/conventions.py``; q and -
 - ``advance`` moves ``k`` by ``steps`` and returns steps + 1 samples at t = (k0 + i) dt;
 - batched stepping (engines with ``supports_batch()``) equals one-shot stepping to round-off;
 - ``bare_loop`` is None or a callable that runs; capabilities are well formed.
+
+An engine's opt-in integrators (``Adapter.opt_in_integrators``: its slow ones) carry the ``slow``
+mark.
 """
 from __future__ import annotations
 
@@ -167,9 +170,12 @@ def _collect_offers() -> list:
             integrators, precisions = cls.offered_integrators(), tuple(cls.precisions)
         except Exception:
             integrators, precisions = (None,), (None,)
+        # opt-in integrators are the engine's slow ones (seconds to minutes a run): marked slow
+        opt_in = tuple(getattr(cls, "opt_in_integrators", ()) or ())
         for integ in integrators:
+            slow = [pytest.mark.slow] if integ in opt_in else []
             for prec in precisions:
-                offers.append(pytest.param(Offer(name, integ, prec), marks=marks,
+                offers.append(pytest.param(Offer(name, integ, prec), marks=marks + slow,
                                            id=f"{name}-{integ}-{prec}"))
     return offers
 

@@ -61,6 +61,13 @@ ENGINE_INTEGRATORS = [
                  id="dart"),
     # MuJoCo 3.x is not installed in CI; MJX's RK4 is the same scheme (no dexp^-1), in float64
     pytest.param("mjx", "RK4", "float64", "rk4-body-exp", marks=engine_marks("mjx"), id="mjx-RK4-float64"),
+    # Drake 1.51: the discrete plant and the fixed-step explicit integrators of the continuous plant
+    *(pytest.param("drake", integ, None, name, marks=engine_marks("drake"), id=f"drake-{integ}")
+      for integ, name in (("discrete", "quat-rate-semi-implicit"),
+                          ("semi-explicit-euler", "quat-rate-semi-implicit"),
+                          ("explicit-euler", "quat-rate-euler"), ("rk2", "quat-rate-rk2"),
+                          ("rk3", "quat-rate-rk3"), ("bogacki-shampine3", "quat-rate-bs3"),
+                          ("rk5", "quat-rate-rk5"))),
 ]
 # (case, duration s or None for the case's own)
 CASES = [("dzhanibekov", 4.0), ("body_torque_spinup", None), ("gazebo_boxes_simple", None),
@@ -170,6 +177,29 @@ def _steps(name: str, pb: Problem, dt: float):
                 lambda k, s: E.implicit_gyro_split_torque_step(k, *s, dt, M, moments, V.T, g, wrench),
                 lambda k, s: CE.implicit_gyro_split_torque_step(k, *_tuples(s), dt, M, C.vec(moments),
                                                                 C.mat(V.T), g_c, loads))
+    if name == "explicit-gyro-rescaled-momentum":
+        moments, V, q_V = E.physx_principal_frame(I_b)
+        return ((x, quat_multiply(q, q_V), v, w),
+                lambda k, s: E.explicit_gyro_rescaled_momentum_step(k, *s, dt, M, moments, V.T, g, wrench),
+                lambda k, s: CE.explicit_gyro_rescaled_momentum_step(k, *_tuples(s), dt, M, C.vec(moments),
+                                                                     C.mat(V.T), g_c, loads))
+    if name == E.DRAKE_SEMI_IMPLICIT or name in E.DRAKE_TABLEAUS:
+        # Drake's state y = [q, x, w, v] (13,), handed to the test as (x, q, v, w)
+        def join(s):
+            return np.concatenate([s[1], s[0], s[3], s[2]])
+
+        def split(y):
+            return y[4:7], y[0:4], y[10:13], y[7:10]
+
+        if name == E.DRAKE_SEMI_IMPLICIT:
+            numpy_step = lambda k, s: split(E.drake_semi_explicit_euler_step(k, join(s), dt, M, I_b, g, wrench))  # noqa: E731
+            compiled_step = lambda k, s: split(CE.drake_semi_explicit_euler_step(k, join(s), dt, M, I_b_c, g_c, loads))  # noqa: E731
+        else:
+            A, b = CE.drake_tableau_arrays(name)
+            numpy_step = lambda k, s: split(E.drake_explicit_rk_step(k, join(s), dt, M, I_b, g, wrench,  # noqa: E731
+                                                                     E.DRAKE_TABLEAUS[name]))
+            compiled_step = lambda k, s: split(CE.drake_explicit_rk_step(k, join(s), dt, M, I_b_c, g_c, loads, A, b))  # noqa: E731
+        return (x, q, v, w), numpy_step, compiled_step
     phi = E.dart_log_map(matrix_from_quat(q))
     return ((x, phi, v, E.dart_exp_map_rot(phi).T @ w),
             lambda k, s: E.explicit_gyro_truncated_exp_step(k, *s, dt, M, I_b, I_inv, g, wrench),

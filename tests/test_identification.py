@@ -28,7 +28,11 @@ from freebody.run.sharedcache import GroupTruthCache
 
 requires_mujoco = pytest.mark.skipif(not is_available("mujoco"), reason="mujoco not installed (pip install mujoco)")
 EXACT_ROTATION_MAPS = {"semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro", "lie-euler",
-                       "symplectic-splitting", "rkmk4", "rkmk4-body", "rk4-body-exp", "implicit-gyro-split-torque"}
+                       "symplectic-splitting", "rkmk4", "rkmk4-body", "rk4-body-exp", "implicit-gyro-split-torque",
+                       "explicit-gyro-rescaled-momentum",
+                       # Drake's RK5 (quaternion rate, never renormalised): fifth order, its error on
+                       # a sphere's spin at dt 1e-3 is below round-off
+                       "quat-rate-rk5"}
 # DART's map differs from semi-implicit-explicit-gyro only by its truncated exponential below 1e-3 rad
 # a step: on a sphere at dt 1e-3 it is not exact (h |w| < 1e-3 there)
 TRUNCATED_EXP_MAP = "explicit-gyro-truncated-exp"
@@ -112,7 +116,8 @@ def test_a_spin_of_a_sphere_is_a_tie_of_the_exact_rotation_maps():
         run = {"matches_reference": m, "engine": "e", "integrator": "Euler", "case": "spinning_sphere",
                "dt": dt, "status": "ok", "metrics": {}}
         text = ("tie: semi-implicit-explicit-gyro = semi-implicit-implicit-gyro = rkmk4-body = rk4-body-exp = "
-                "implicit-gyro-split-torque = lie-euler = symplectic-splitting = rkmk4")
+                "implicit-gyro-split-torque = explicit-gyro-rescaled-momentum = quat-rate-rk5 = lie-euler = "
+                "symplectic-splitting = rkmk4")
         assert rd.reproduces(run).startswith(text)
         assert rd.reproduction_summary([run])[0][1] == text
         assert text in summary_table([run])
@@ -150,9 +155,11 @@ def test_a_second_order_map_is_not_claimed_as_rk4():
     m = _identify(pb, _midpoint(pb, dt, n), "RK4", dt, n)
     assert m["candidates"]["rk4"] < OLD_FIXED_THRESHOLD_RAD  # what the old rule claimed
     # closest: rk4 or the second-order symplectic-splitting, both 6.51e-7 rad away (the midpoint
-    # map's own error dominates the difference to either)
+    # map's own error dominates the difference to either), or Drake's Heun map quat-rate-rk2,
+    # another explicit second-order Runge-Kutta, 3.9e-9 rad away (1.3e4 times its level)
     closest = m["closest"]
-    assert m["integrator"] is None and m["indistinguishable"] == [] and closest in ("rk4", "symplectic-splitting")
+    assert m["integrator"] is None and m["indistinguishable"] == [] and closest in (
+        "rk4", "symplectic-splitting", "quat-rate-rk2")
     assert m["ratios"]["rk4"] > 1e3 and m["ratios"][closest] > 1e3  # not a close call
     assert m["max_orientation_diff_rad"] == m["candidates"][closest] and m["threshold_rad"] == m["levels_rad"][closest]
 
@@ -167,8 +174,10 @@ def test_mujoco_rk4_is_not_the_reference_rk4_on_dzhanibekov():
     # it is its own engine-equivalent map (reference_impl.engine_maps): RK4 with the dexp^-1 correction
     # (2e-15 rad away).  The reference rkmk4, another fourth-order Lie-group RK4 (L integrated, w from
     # each stage's R), is 5.7e-12 rad away: below this chaotic case's round-off level (2.1e-11 rad)
-    # at dt 1e-3, so the two tie here (named by rkmk4-body: the engine maps come first) ...
-    assert m["integrator"] == "rkmk4-body" and m["indistinguishable"] == ["rkmk4-body", "rkmk4"], m["ratios"]
+    # at dt 1e-3, so the two tie here (named by rkmk4-body: the engine maps come first), and with
+    # Drake's fifth-order quat-rate-rk5, as close to the truth ...
+    assert m["integrator"] == "rkmk4-body" and m["indistinguishable"] == ["rkmk4-body", "quat-rate-rk5",
+                                                                          "rkmk4"], m["ratios"]
     assert m["candidates"]["rkmk4-body"] < 1e-3 * m["candidates"]["rkmk4"]
     # ... and at dt 1e-2 they part (rkmk4 2.7e-3 rad away, rkmk4-body 4.2e-10): rkmk4-body alone
     dt, n = 0.01, 1000

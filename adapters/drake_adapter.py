@@ -1,0 +1,612 @@
+"""Drake (``pydrake``) as a freebody engine: one MultibodyPlant with one rigid body on the floating
+joint Drake gives a free body (a QuaternionFloatingJoint), driven by a ``Simulator``.
+
+Integrators (freebody's names; default first):
+
+- ``discrete``: the discrete MultibodyPlant (``time_step = dt``).  With no contact every discrete
+  contact solver and approximation (SAP with ``lagged``, the default; TAMSI; ``similar``...) returns
+  the free-motion velocities, so one variant stands for them all: semi-implicit Euler, the map
+  ``quat-rate-semi-implicit`` (``reference_impl/engine_maps.py``).
+- a continuous plant (``time_step = 0``) stepped by one of Drake's integrators
+  (``ResetIntegratorFromFlags``) in FIXED-STEP mode, step = dt: ``explicit-euler``,
+  ``semi-explicit-euler``, ``rk2``, ``rk3``, ``bogacki-shampine3``, ``rk5`` (explicit; maps
+  ``quat-rate-euler``, ``quat-rate-semi-implicit``, ``quat-rate-rk2``, ``-rk3``, ``-bs3``, ``-rk5``),
+  and ``implicit-euler``, ``velocity-implicit-euler``, ``radau1``, ``radau3`` (implicit: Newton
+  iterations whose stopping tolerance comes from the accuracy in use, Drake's default 1e-1 in
+  fixed-step mode when none is set, and which halve the step where Newton fails, so dt is a
+  maximum step; not identified with a map).
+- the same integrators ERROR-CONTROLLED, named with their target accuracy, which is part of the
+  run's identity: ``rk3-accuracy-1e-6``, ``rk3-accuracy-1e-10``, ``rk5-accuracy-1e-6``,
+  ``rk5-accuracy-1e-10``, ``radau3-accuracy-1e-6``, ``radau3-accuracy-1e-10``,
+  ``implicit-euler-accuracy-1e-6`` (maximum step dt; samples by ``AdvanceTo(k dt)``; not
+  identified: the accuracy is no error bound, see below).  The slow ones are opt-in
+  (``opt_in_integrators``, trap check "slow ... opt-in"): ``implicit-euler-accuracy-1e-6`` and
+  ``radau3-accuracy-1e-10`` (1.5 and 3 s of wall time per simulated second on a 50 rad/s spin).
+  Implicit Euler at 1e-10 is not offered (about 12 s per simulated second of dzhanibekov, hours
+  on a fast spin).
+
+Precision: float64 only (Drake's AutoDiffXd and symbolic scalars are not integrators' precisions).
+
+Drake's conventions and what this adapter converts:
+
+- Generalized positions (7,) = [q (4) Hamilton (w, x, y, z) body -> world, body origin (3) m
+  world]; velocities (6,) = [w (3) rad/s WORLD, v (3) m/s WORLD, the velocity of the body ORIGIN].
+  The body is built with its COM at its frame origin (``SpatialInertia.MakeFromCentralInertia``
+  with a zero offset), so origin = COM and v = the COM velocity: freebody's convention, no
+  conversion.  The adapter writes and reads the raw coordinates (``SetPositionsAndVelocities``,
+  ``GetPositionsAndVelocities``) and proves their layout at every build with Drake's frame-explicit
+  getters (``EvalBodyPoseInWorld``, ``EvalBodySpatialVelocityInWorld``) on a rotated, moving probe
+  state, then on the case's initial state.  It never calls ``SetFreeBodySpatialVelocity``, whose
+  argument order changed (in 1.51.1 the old ``(body, V_PB, context)`` warns, to be removed
+  2026-06-01; the new order is ``(context, body, V_JpJc)``, and the keyword ``V_WB`` of older
+  releases is a TypeError): the old order breaks after 2026-06-01, the new one on older releases.
+- Inertia: ``RotationalInertia(Ixx, Iyy, Izz, Ixy, Ixz, Iyz)``, the full tensor about the COM in the
+  body frame (its entries, no diagonalisation), read back as a 3x3 matrix.  Drake refuses a
+  tensor that breaks the triangle inequality (a run then fails with Drake's message).
+- THE QUATERNION IS NEVER RENORMALISED.  Drake integrates q' = 1/2 (0, w) q as a vector of R^4:
+  the discrete plant and the explicit continuous schemes let the stored norm grow (explicit and
+  semi-explicit Euler by sqrt(1 + h^2 |w|^2 / 4) a step: 1.41 after 10 s of dzhanibekov at
+  dt 0.01), the implicit ones shrink it.  Drake's kinematics use the rotation of q / |q|, and the
+  pose read-back (``GetFreeBodyPose``, ``EvalBodyPoseInWorld``) normalises, which hides the
+  drift.  freebody measures the engine as it is: the adapter reads the raw generalized positions,
+  reports the orientation q / |q| (what Drake's dynamics use: the norm does not change the
+  orientation of any of these maps) and keeps the raw norm of every sample of the last
+  ``advance`` in ``quaternion_norm`` and its largest |norm - 1| in ``quaternion_norm_drift``;
+  the engine maps reproduce the unnormalised state.  A norm that overflows (|q| grows
+  geometrically under a fast spin) gives non-finite samples: the harness calls it a divergence.
+- Loads: the applied-spatial-force input port, fixed before each step to one
+  ``ExternallyAppliedSpatialForce`` at the body origin (``p_BoBq_B = 0``, the COM) with
+  ``F_Bq_W`` = [torque about the COM, force], world frame: the step's wrench from
+  ``Segment.wrench`` at the state of the step's start (arms of point forces and body couples
+  from x_k and R(q_k / |q_k|)), held over the step, every Runge-Kutta stage included.
+- Time: the continuous plant is advanced with ``Simulator.AdvanceTo((k + 1) dt)``.  (k + 1) dt - k dt
+  is not dt in floating point (0.07 - 0.06 = 0.010000000000000009): with a maximum step of exactly
+  dt, fixed-step mode takes a step of dt and then a second, tiny one (10% of the calls at
+  dt = 0.01).  The maximum step is dt (1 + DRAKE_STEP_SLACK): one step per freebody step, of
+  (k + 1) dt - k dt (exact, Sterbenz); ``advance`` checks the integrator's step count.
+- Instability: Drake raises RuntimeError from ``AdvanceTo`` when an error-controlled or implicit
+  integrator cannot continue (step size below its minimum, Newton failing at the minimum step):
+  the adapter reports that as :class:`EngineDiverged` with the samples up to the last good one.
+  Non-finite states are left to the harness.
+
+Engine defaults the adapter changes (each read back from Drake and recorded in ``settings``):
+``time_step`` (MultibodyPlantConfig's 0.001 -> dt for ``discrete``, 0 for the continuous plant),
+``gravity`` ((0, 0, -9.81) -> the case's), and for the continuous plant the Simulator's integrator
+(``RungeKutta3Integrator``, error-controlled, maximum step 0.1 s, target accuracy 1e-4 -> the
+chosen scheme, fixed-step mode or not, maximum step dt (1 + DRAKE_STEP_SLACK), the target accuracy
+of an error-controlled run).  Checked, not changed: the floating joint is a QuaternionFloatingJoint
+with zero angular and translational damping (default and in the context), the body's mass, COM and
+inertia read back as given.  No geometry, so no contact.
+"""
+from __future__ import annotations
+
+import importlib.metadata
+from typing import Callable, ClassVar
+
+import numpy as np
+from pydrake.multibody.math import SpatialForce
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant, MultibodyPlantConfig
+from pydrake.multibody.tree import RotationalInertia, SpatialInertia
+from pydrake.systems.analysis import GetIntegrationSchemes, ResetIntegratorFromFlags, Simulator
+
+from ..reference_impl.conventions import Trajectory
+from ..reference_impl.problem import Body, InitialState, Problem
+from ..reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec
+from ..reference_impl.truth import truth_trajectory
+from ..tolerances import (DRAKE_OPT_IN_DERIVATIVES_PER_SIMULATED_SECOND, DRAKE_READBACK_ATOL,
+                          DRAKE_STEP_SLACK, DRAKE_TRAP_NORM_DRIFT_MIN, DRAKE_TRAP_NORM_RTOL)
+from .base import Adapter, EngineDiverged
+
+# freebody's name of a continuous integrator -> Drake's scheme (GetIntegrationSchemes()).
+_SCHEMES: dict[str, str] = {
+    "explicit-euler": "explicit_euler",
+    "semi-explicit-euler": "semi_explicit_euler",
+    "rk2": "runge_kutta2",
+    "rk3": "runge_kutta3",
+    "bogacki-shampine3": "bogacki_shampine3",
+    "rk5": "runge_kutta5",
+    "implicit-euler": "implicit_euler",
+    "velocity-implicit-euler": "velocity_implicit_euler",
+    "radau1": "radau1",
+    "radau3": "radau3",
+}
+# Error-controlled variants: integrator -> target accuracies (as spelt in the name).
+_ERROR_CONTROLLED: dict[str, tuple[str, ...]] = {
+    "rk3": ("1e-6", "1e-10"),
+    "rk5": ("1e-6", "1e-10"),
+    "radau3": ("1e-6", "1e-10"),
+    # not 1e-10: about 12 s of wall time per simulated second of dzhanibekov, hours on a fast spin
+    "implicit-euler": ("1e-6",),
+}
+# Drake's implicit schemes: Newton iterations; in fixed-step mode they halve the step where Newton
+# fails (substep failures), so their "fixed" step is a maximum step.
+_IMPLICIT = frozenset({"implicit_euler", "velocity_implicit_euler", "radau1", "radau3"})
+_ACCURACY = "-accuracy-"
+_DISCRETE = "discrete"
+# The slow ones (trap check _check_opt_in): on a 50 rad/s spin near the intermediate axis,
+# implicit-euler-accuracy-1e-6 takes 1.5 s and radau3-accuracy-1e-10 3 s of wall time per simulated
+# second (3.2e5 and 6.4e5 derivative evaluations; rk3-accuracy-1e-10, the next, 1.9e5).
+_OPT_IN = ("implicit-euler-accuracy-1e-6", "radau3-accuracy-1e-10")
+
+_BODY_NAME = "freebody"
+_FLOATING_JOINT_TYPE = "quaternion_floating"
+
+# Words of Drake's RuntimeError messages from AdvanceTo that mean the integrator gave up on the
+# dynamics (a blow-up), not a misuse of the API.
+_INSTABILITY_WORDS = ("step size", "minimum", "converge", "Newton", "NaN", "nan", "finite")
+
+
+def integrator_scheme(integrator: str) -> tuple[str | None, float | None]:
+    """(Drake's scheme, target accuracy) of a freebody integrator name: (None, None) for the
+    discrete plant, (scheme, None) for fixed-step mode, (scheme, accuracy) for error control."""
+    if integrator == _DISCRETE:
+        return None, None
+    base, _, accuracy = integrator.partition(_ACCURACY)
+    return _SCHEMES[base], (float(accuracy) if accuracy else None)
+
+
+def _all_integrators() -> tuple[str, ...]:
+    names = [_DISCRETE, *_SCHEMES]
+    for base, accuracies in _ERROR_CONTROLLED.items():
+        names += [f"{base}{_ACCURACY}{a}" for a in accuracies]
+    return tuple(names)
+
+
+class DrakeAdapter(Adapter):
+    name: ClassVar[str] = "drake"
+    import_name: ClassVar[str] = "pydrake"
+    # Verified on drake 1.51.1 only: the package index reachable here offers no other release.  The
+    # API used (MultibodyPlant, SpatialInertia.MakeFromCentralInertia, ExternallyAppliedSpatialForce,
+    # ResetIntegratorFromFlags, GetIntegrationSchemes, Joint.GetDampingVector) is older, and the
+    # adapter avoids the free-body setters whose signatures changed, but no older release was run.
+    supported_versions: ClassVar[str | None] = ">=1.51"
+    integrators: ClassVar[tuple[str, ...]] = _all_integrators()
+    opt_in_integrators: ClassVar[tuple[str, ...]] = _OPT_IN
+    precisions: ClassVar[tuple[str, ...]] = ("float64",)
+    conventions: ClassVar[dict[str, str]] = {
+        "quaternion order": "generalized positions [qw qx qy qz, x y z], Hamilton, body -> world: "
+                            "freebody's order, no conversion",
+        "angular velocity frame": "generalized velocities [w, v], both WORLD frame; v is the body "
+                                  "origin's velocity, = the COM's (the body is built with its COM "
+                                  "at its origin)",
+        "inertia input": "full tensor about the COM, body frame (RotationalInertia with products); "
+                         "Drake refuses one that breaks the triangle inequality",
+        "quaternion norm": "NEVER renormalised: q' = 1/2 (0, w) q integrated in R^4 (norm 1.41 "
+                           "after 10 s of dzhanibekov at dt 0.01, discrete plant); Drake's pose "
+                           "read-back normalises and hides it; freebody reads the raw q, reports "
+                           "q / |q| and keeps the raw norm (DrakeAdapter.quaternion_norm)",
+        "target accuracy": "an error-controlled integrator's accuracy is a per-step relative "
+                           "tolerance, NOT a bound on the error: on dzhanibekov at dt 0.01 "
+                           "rk5-accuracy-1e-10 is up to 3.7e-3 rad off, worse than "
+                           "rk5-accuracy-1e-6 (1.4e-4, the fixed-step rk5's); fixed-step rk5 at "
+                           "dt 1e-3: 8.5e-10; the accuracy is part of the integrator's name",
+        "fixed-step implicit": "Newton stops at a tolerance from the accuracy in use (Drake's "
+                               "default 1e-1 when none is set): implicit-euler, "
+                               "velocity-implicit-euler, radau1, radau3 depend on it; freebody "
+                               "keeps Drake's default",
+        "slow integrators": "implicit-euler-accuracy-1e-6 and radau3-accuracy-1e-10 (1.5 and 3 s "
+                            "per simulated s on a fast spin) run only when named (opt-in); "
+                            "implicit Euler at 1e-10 (~12 s per simulated s) is not offered",
+        "fixed step, implicit": "where Newton fails the step is halved (substep failures): dt is a "
+                                "maximum step for implicit-euler, velocity-implicit-euler, radau1, "
+                                "radau3",
+        "free-body velocity API": "SetFreeBodySpatialVelocity(body, V_PB, context) is deprecated "
+                                  "(now context, body, V_JpJc; removal 2026-06-01); freebody writes "
+                                  "the raw coordinates after proving their layout with "
+                                  "EvalBodyPoseInWorld / EvalBodySpatialVelocityInWorld",
+        "time grid": "fixed-step AdvanceTo((k+1) dt) with maximum step dt would add a tiny second "
+                     "step whenever (k+1) dt - k dt > dt in floating point; the maximum step is "
+                     "dt (1 + 1e-6), one Drake step per freebody step (checked)",
+        "damping": "none (the QuaternionFloatingJoint's damping is 0; checked)",
+        "gravity, time step": "defaults (0, 0, -9.81) and 0.001 s; freebody sets the case's",
+        "discrete solver": "SAP, lagged approximation (defaults, unchanged): with no contact every "
+                           "solver gives the free-motion velocities, semi-implicit Euler",
+        "loads": "applied-spatial-force input port, fixed before each step: [torque about the COM, "
+                 "force] world at the body origin (= COM), from the state at the step's start",
+        "instability signal": "RuntimeError from AdvanceTo (step size below minimum, Newton "
+                              "failure) -> diverged; non-finite states left to the harness",
+    }
+
+    @classmethod
+    def engine_version(cls) -> str:
+        try:
+            return importlib.metadata.version("drake")
+        except importlib.metadata.PackageNotFoundError:  # pragma: no cover - a source build
+            import pydrake
+            return str(getattr(pydrake, "__version__", "unknown"))
+
+    @classmethod
+    def offered_integrators(cls) -> tuple[str, ...]:
+        """The integrators whose Drake scheme the installed release offers (GetIntegrationSchemes)."""
+        schemes = set(GetIntegrationSchemes())
+        return tuple(i for i in cls.integrators
+                     if i == _DISCRETE or integrator_scheme(i)[0] in schemes)
+
+    @classmethod
+    def selfcheck_integrators(cls) -> tuple[str, ...]:
+        """The integrators whose schemes meet the self-checks' bounds, which are those of the
+        exponential-map engines (MuJoCo Euler, PyBullet, DART): high_spin allows 1e-9 rad for a
+        150 rad/s spin about a principal axis, which those maps turn exactly; torque_free_L allows
+        1.1 x their L drift.  Drake's maps turn a step by 2 atan(h |w| / 2) (Euler family) or to
+        their order: every integrator passes the initial-state and push checks, but high_spin fails
+        by design for the fixed-step ones (discrete 5.6e-2 rad, rk3 3.2e-5, rk5 2.5e-9; the maps
+        quat-rate-* give the same) and torque_free_L for explicit-euler and radau1 (2.5e-3 against
+        1.4e-3).  Checked: the two error-controlled explicit integrators at 1e-10, which pass all."""
+        return tuple(i for i in cls.offered_integrators() if i in _SELFCHECKED)
+
+    # --- building -------------------------------------------------------------------------------
+    def build(self) -> None:
+        pb = self.problem
+        scheme, accuracy = integrator_scheme(self.integrator)
+        self._scheme, self._accuracy = scheme, accuracy
+        self._continuous = scheme is not None
+        self._fixed_step = self._continuous and accuracy is None
+        # one Drake step per step (checked by advance): the discrete plant and the fixed-step
+        # explicit schemes
+        self._one_step_each = not self._continuous or (self._fixed_step and scheme not in _IMPLICIT)
+
+        time_step = 0.0 if self._continuous else self.dt
+        plant = MultibodyPlant(time_step=time_step)
+        _check("time step", plant.time_step(), time_step)
+        self.record_setting("time_step", MultibodyPlantConfig().time_step, plant.time_step())
+
+        M, I_b = float(pb.body.mass), np.array(pb.body.I_body, dtype=float)
+        inertia = RotationalInertia(I_b[0, 0], I_b[1, 1], I_b[2, 2], I_b[0, 1], I_b[0, 2], I_b[1, 2])
+        body = plant.AddRigidBody(_BODY_NAME, SpatialInertia.MakeFromCentralInertia(M, np.zeros(3), inertia))
+        _check("mass", body.default_mass(), M)
+        _check("COM offset", body.default_com(), np.zeros(3))
+        _check("inertia", body.default_rotational_inertia().CopyToFullMatrix3(), I_b)
+
+        g_default = np.array(plant.gravity_field().gravity_vector(), dtype=float)
+        g = np.array(pb.gravity, dtype=float)
+        plant.mutable_gravity_field().set_gravity_vector(g)
+        g_read = np.array(plant.gravity_field().gravity_vector(), dtype=float)
+        _check("gravity", g_read, g)
+        self.record_setting("gravity", g_default, g_read)
+        plant.Finalize()
+        joint = _floating_joint(plant)
+
+        sim = Simulator(plant)
+        if self._continuous:
+            self._set_integrator(sim)
+        context = sim.get_mutable_context()
+        _check_no_damping(joint, context)
+
+        force = ExternallyAppliedSpatialForce()
+        force.body_index = body.index()
+        force.p_BoBq_B = np.zeros(3)
+        force.F_Bq_W = SpatialForce(np.zeros(3), np.zeros(3))
+        self._force = force
+        self._port_value = plant.get_applied_spatial_force_input_port().FixValue(context, [force])
+
+        init = pb.initial
+        _check_layout(plant, body, context)
+        y0 = np.concatenate([init.quaternion_wxyz, init.position, init.angular_velocity,
+                             init.linear_velocity]).astype(float)
+        plant.SetPositionsAndVelocities(context, y0)
+        _check_state(plant, body, context, y0, "initial state")
+        sim.Initialize()
+
+        self.plant, self.body, self.simulator, self.context = plant, body, sim, context
+        self._integrator = sim.get_integrator() if self._continuous else None
+        self._steps0 = self._engine_steps()
+        self._wrench_now = np.zeros(6)  # the wrench the port holds, [tau, f]
+        self.quaternion_norm = np.array([np.linalg.norm(y0[0:4])])
+        self.quaternion_norm_drift = abs(float(self.quaternion_norm[0]) - 1.0)
+
+    def _set_integrator(self, sim) -> None:
+        """Drake's integrator for the continuous plant: the scheme, fixed-step mode or error
+        control with the target accuracy, maximum step dt (1 + slack); each read back."""
+        default = sim.get_integrator()
+        default_type = type(default).__name__
+        defaults = (default.get_fixed_step_mode(), default.get_maximum_step_size(),
+                    default.get_target_accuracy())
+        max_step = self.dt * (1.0 + DRAKE_STEP_SLACK)
+        integ = ResetIntegratorFromFlags(sim, self._scheme, max_step)
+        integ.set_fixed_step_mode(self._fixed_step)
+        if self._accuracy is not None:
+            integ.set_target_accuracy(self._accuracy)
+        integ = sim.get_integrator()
+        if integ.get_fixed_step_mode() != self._fixed_step:
+            raise RuntimeError(f"drake: {self._scheme} fixed-step mode read back "
+                               f"{integ.get_fixed_step_mode()}, set {self._fixed_step}")
+        _check("maximum step size", integ.get_maximum_step_size(), max_step)
+        self.record_setting("integration_scheme", default_type, self._scheme)
+        self.record_setting("fixed_step_mode", defaults[0], integ.get_fixed_step_mode())
+        self.record_setting("maximum_step_size", defaults[1], integ.get_maximum_step_size())
+        if self._accuracy is not None:
+            _check("target accuracy", integ.get_target_accuracy(), self._accuracy)
+            self.record_setting("target_accuracy", defaults[2], integ.get_target_accuracy())
+
+    def _engine_steps(self) -> int:
+        """Drake's count of steps taken: integrator steps (continuous) or plant updates (discrete)."""
+        if self._continuous:
+            return int(self._integrator.get_num_steps_taken())
+        sim = self.simulator
+        return int(sim.get_num_unrestricted_updates() + sim.get_num_discrete_updates())
+
+    # --- loads ----------------------------------------------------------------------------------
+    def _put_wrench(self, wrench: np.ndarray) -> None:
+        """Fix the input port to the wrench (6,) [force (3) N world, torque about the COM (3) N m
+        world] (as ``Segment.wrench`` gives it), at the body origin = COM; unchanged values are
+        not written again."""
+        w = np.concatenate([wrench[3:6], wrench[0:3]])  # Drake's SpatialForce order: [tau, f]
+        if np.array_equal(w, self._wrench_now):
+            return
+        self._force.F_Bq_W = SpatialForce(w[0:3], w[3:6])
+        self._port_value.GetMutableData().set_value([self._force])
+        self._wrench_now = w
+
+    # --- stepping -------------------------------------------------------------------------------
+    def advance(self, steps: int) -> Trajectory:
+        """``steps`` steps of dt from step ``self.k``: before each, the port holds the step's wrench
+        (rewritten only where it can change); Simulator.AdvanceTo((k + 1) dt); the raw 13
+        coordinates [q, x, w, v] copied per sample and converted once at the end.  A RuntimeError
+        of Drake's that says the integrator gave up raises EngineDiverged with the samples up to
+        the last good one; the step count is checked against Drake's (one engine step per step)."""
+        plant, ctx, dt = self.plant, self.context, self.dt
+        advance_to, read = self.simulator.AdvanceTo, plant.GetPositionsAndVelocities
+        k0 = self.k
+        engine_steps0 = self._engine_steps() if self._one_step_each else 0
+        Y = np.empty((steps + 1, 13))
+        Y[0] = read(ctx)
+        i = 0
+        for seg, ka, kb in self.loads.stretches(k0, k0 + steps):
+            dependent = seg.active and seg.state_dependent
+            if not dependent:
+                self._put_wrench(seg.constant if seg.active else np.zeros(6))
+            for k in range(ka, kb):
+                if dependent:
+                    y = Y[i]
+                    self._put_wrench(seg.wrench(y[4:7], matrix_from_quat(y[0:4])))
+                try:
+                    advance_to((k + 1) * dt)
+                except RuntimeError as e:
+                    if not any(word in str(e) for word in _INSTABILITY_WORDS):
+                        raise
+                    self.k = k
+                    out = self._trajectory(Y[:i + 1], k0)
+                    raise EngineDiverged(k * dt, f"Drake gave up stepping to t = {(k + 1) * dt:.6g} s: "
+                                         f"{_first_line(e)}", out) from e
+                i += 1
+                Y[i] = read(ctx)
+        self.k = k0 + steps
+        if self._one_step_each:
+            taken = self._engine_steps() - engine_steps0
+            if taken != steps:
+                raise RuntimeError(f"drake took {taken} steps for {steps} steps of dt = {dt:g} s "
+                                   f"({self.integrator}): the time grid slack no longer holds")
+        return self._trajectory(Y, k0)
+
+    def _trajectory(self, Y: np.ndarray, k0: int) -> Trajectory:
+        """Canonical samples from Drake's raw coordinates Y (n, 13) = [q (as stored), x, w, v]:
+        the orientation q / |q|; the raw norms kept in ``quaternion_norm``."""
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            q = Y[:, 0:4]
+            norm = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
+            quat = q / norm[:, None]
+        self.quaternion_norm = norm
+        finite = norm[np.isfinite(norm)]
+        if len(finite):
+            self.quaternion_norm_drift = max(self.quaternion_norm_drift,
+                                             float(np.max(np.abs(finite - 1.0))))
+        return Trajectory(t=(k0 + np.arange(len(Y))) * self.dt, position=Y[:, 4:7].copy(),
+                          quaternion_wxyz=quat, linear_velocity=Y[:, 10:13].copy(),
+                          angular_velocity=Y[:, 7:10].copy())
+
+    def bare_loop(self, steps: int) -> Callable[[], object]:
+        """Simulator.AdvanceTo + GetPositionsAndVelocities, ``steps`` times from this adapter's
+        current time (``freebody bench``)."""
+        sim, plant, ctx, dt = self.simulator, self.plant, self.context, self.dt
+
+        def loop():
+            advance_to, read = sim.AdvanceTo, plant.GetPositionsAndVelocities
+            k0 = int(round(ctx.get_time() / dt))
+            out = [read(ctx)]
+            for k in range(k0, k0 + steps):
+                advance_to((k + 1) * dt)
+                out.append(read(ctx))
+            return out
+        return loop
+
+    def close(self) -> None:
+        for attr in ("simulator", "context", "plant", "body", "_integrator", "_port_value"):
+            if hasattr(self, attr):
+                setattr(self, attr, None)
+
+    @classmethod
+    def trap_checks(cls) -> dict[str, Callable[[], tuple[bool, float | None, float, str]]]:
+        return {
+            "quaternion norm drift read raw, not hidden": _check_norm_drift,
+            "target accuracy labelled, no error bound": _check_target_accuracy,
+            "velocities written in Drake's [w, v] world layout": _check_velocity_layout,
+            "one Drake step per step (time grid slack)": _check_one_step_per_step,
+            "slow error-controlled implicit Euler is opt-in": _check_opt_in,
+        }
+
+
+# The integrators ``freebody conventions`` self-checks (see DrakeAdapter.selfcheck_integrators).
+_SELFCHECKED = ("rk5-accuracy-1e-10", "rk3-accuracy-1e-10")
+
+
+# --- build-time checks --------------------------------------------------------------------------
+
+def _check(what: str, got, want) -> None:
+    got, want = np.asarray(got, dtype=float), np.asarray(want, dtype=float)
+    scale = np.maximum(1.0, np.abs(want))
+    if got.shape != want.shape or not np.all(np.abs(got - want) <= DRAKE_READBACK_ATOL * scale):
+        raise RuntimeError(f"drake: {what} read back as {got.tolist()}, set {want.tolist()}")
+
+
+def _floating_joint(plant):
+    """The one joint Finalize() gave the free body: a QuaternionFloatingJoint (the adapter's layout
+    of the coordinates depends on it)."""
+    joints = [plant.get_joint(j) for j in plant.GetJointIndices()]
+    if len(joints) != 1 or joints[0].type_name() != _FLOATING_JOINT_TYPE:
+        found = [(j.name(), j.type_name()) for j in joints]
+        raise RuntimeError(f"drake: expected one {_FLOATING_JOINT_TYPE} joint for the free body, "
+                           f"found {found}")
+    if plant.num_positions() != 7 or plant.num_velocities() != 6:
+        raise RuntimeError(f"drake: {plant.num_positions()} positions and {plant.num_velocities()} "
+                           f"velocities for a free body, expected 7 and 6")
+    return joints[0]
+
+
+def _check_no_damping(joint, context) -> None:
+    """The floating joint's damping (default and in the context) is zero: nothing to switch off."""
+    damping = np.concatenate([np.asarray(joint.default_damping_vector(), dtype=float),
+                              np.asarray(joint.GetDampingVector(context), dtype=float)])
+    if np.any(damping != 0.0):
+        raise RuntimeError(f"drake: the floating joint has damping {damping.tolist()}; freebody "
+                           f"expects none")
+
+
+def _check_state(plant, body, context, y: np.ndarray, what: str) -> None:
+    """Drake's frame-explicit getters (pose and spatial velocity of the body in World) against the
+    raw coordinates y = [q, x, w, v] just written: proves the layout."""
+    X = plant.EvalBodyPoseInWorld(context, body)
+    V = plant.EvalBodySpatialVelocityInWorld(context, body)
+    R_read = X.rotation().matrix()
+    R_want = matrix_from_quat(y[0:4])
+    got = np.concatenate([R_read.ravel(), X.translation(), V.rotational(), V.translational()])
+    want = np.concatenate([R_want.ravel(), y[4:7], y[7:10], y[10:13]])
+    scale = 1.0 + np.max(np.abs(want))
+    if np.max(np.abs(got - want)) > DRAKE_READBACK_ATOL * scale:
+        raise RuntimeError(f"drake: {what} written as raw coordinates [q, x, w, v] = {y.tolist()} "
+                           f"reads back through EvalBodyPoseInWorld/EvalBodySpatialVelocityInWorld as "
+                           f"R = {R_read.tolist()}, x = {X.translation().tolist()}, "
+                           f"w = {V.rotational().tolist()}, v = {V.translational().tolist()}")
+
+
+def _check_layout(plant, body, context) -> None:
+    """A rotated, moving probe state (every component distinct) written raw and read back through
+    the frame-explicit getters; the case's state is written afterwards."""
+    q = quat_from_rotvec(np.array([0.4, -0.7, 0.25]))
+    y = np.concatenate([q, [1.5, -2.0, 0.75], [0.7, -1.1, 2.3], [0.3, -0.4, 1.2]])
+    plant.SetPositionsAndVelocities(context, y)
+    _check_state(plant, body, context, y, "a probe state")
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return text.splitlines()[0] if text else type(e).__name__
+
+
+# --- trap checks (DrakeAdapter.trap_checks): each builds its own runs through the adapter -------
+
+def _dzhanibekov(duration_steps: int) -> Problem:
+    """A flip near the intermediate axis, I = diag(1, 2, 3), w = (0.01, 5, 0) rad/s, no gravity."""
+    return Problem("trap-dzhanibekov", "", Body(1.0, np.diag([1.0, 2.0, 3.0])),
+                   InitialState(np.zeros(3), [1.0, 0.0, 0.0, 0.0], np.zeros(3), [0.01, 5.0, 0.0]),
+                   gravity=(0.0, 0.0, 0.0), duration_steps=duration_steps)
+
+
+def _check_norm_drift():
+    """Discrete plant, 10 s at dt 0.01: the stored |q| grows (1.41); the adapter's reported raw norm
+    must be the engine's own, while Drake's pose read-back shows 1."""
+    dt, steps = 0.01, 1000
+    adapter = DrakeAdapter(_dzhanibekov(steps), dt, _DISCRETE)
+    try:
+        tr = adapter.simulate(steps)
+        raw = float(np.linalg.norm(adapter.plant.GetPositions(adapter.context)[0:4]))
+        pose = adapter.plant.EvalBodyPoseInWorld(adapter.context, adapter.body)
+        pose_norm = float(np.linalg.norm(pose.rotation().ToQuaternion().wxyz()))
+        reported = float(adapter.quaternion_norm[-1])
+        drift = adapter.quaternion_norm_drift
+        q_raw = adapter.plant.GetPositions(adapter.context)[0:4]
+        turned = float(geodesic_angle(tr.quaternion_wxyz[-1], q_raw / raw))
+    finally:
+        adapter.close()
+    err = abs(reported - raw) / raw
+    ok = err <= DRAKE_TRAP_NORM_RTOL and drift >= DRAKE_TRAP_NORM_DRIFT_MIN and turned <= DRAKE_TRAP_NORM_RTOL
+    return (ok, err, DRAKE_TRAP_NORM_RTOL,
+            f"discrete plant, 10 s at dt 0.01: raw |q| {raw:.4g} (Drake's pose read-back: "
+            f"{pose_norm:.4g}); the adapter reports {reported:.4g} (drift {drift:.3g}, must be "
+            f">= {DRAKE_TRAP_NORM_DRIFT_MIN:g}), orientation q / |q| off by {turned:.1e} rad")
+
+
+def _check_target_accuracy():
+    """rk5-accuracy-1e-10, 4 s of dzhanibekov at dt 0.01 against the truth: the achieved error is
+    far above the requested accuracy; the adapter must run at that accuracy (read back), name it
+    in the run's integrator and say in its conventions that it is no error bound."""
+    dt, steps, name = 0.01, 400, "rk5-accuracy-1e-10"
+    pb = _dzhanibekov(steps)
+    adapter = DrakeAdapter(pb, dt, name)
+    try:
+        tr = adapter.simulate(steps)
+        requested = float(adapter._integrator.get_target_accuracy())
+        recorded = adapter.settings.get("target_accuracy", {}).get("set")
+    finally:
+        adapter.close()
+    err = float(np.max(geodesic_angle(tr.quaternion_wxyz, truth_trajectory(pb, dt, steps).quaternion_wxyz)))
+    labelled = "NOT a bound" in DrakeAdapter.conventions.get("target accuracy", "")
+    ok = requested == 1e-10 and recorded == requested and name.endswith("1e-10") and labelled
+    return (ok, err, requested,
+            f"{name}, 4 s of dzhanibekov at dt 0.01: orientation error {err:.1e} rad for a requested "
+            f"accuracy of {requested:g} (read back, recorded: {recorded}); conventions label it "
+            f"no error bound: {labelled}")
+
+
+def _check_velocity_layout():
+    """A rotated, moving body with distinct w and v: the state written by the adapter reads back
+    through Drake's frame-explicit world getters as the case's (w and v swapped, or a body-frame
+    w, would be O(1) off)."""
+    q0 = quat_from_rotvec(np.array([0.3, -0.5, 0.9]))
+    w0, v0, x0 = np.array([0.7, -1.1, 2.3]), np.array([-0.4, 1.2, 0.3]), np.array([1.0, 2.0, -3.0])
+    pb = Problem("trap-layout", "", Body(1.7, np.diag([1.0, 2.0, 2.5])), InitialState(x0, q0, v0, w0),
+                 gravity=(0.0, 0.0, 0.0), duration_steps=1)
+    adapter = DrakeAdapter(pb, 0.01, "rk5")
+    try:
+        V = adapter.plant.EvalBodySpatialVelocityInWorld(adapter.context, adapter.body)
+        X = adapter.plant.EvalBodyPoseInWorld(adapter.context, adapter.body)
+        R = X.rotation().matrix()
+    finally:
+        adapter.close()
+    err = float(max(np.max(np.abs(V.rotational() - w0)), np.max(np.abs(V.translational() - v0)),
+                    np.max(np.abs(X.translation() - x0)), np.max(np.abs(R - matrix_from_quat(q0)))))
+    return (err <= DRAKE_READBACK_ATOL * 10.0, err, DRAKE_READBACK_ATOL * 10.0,
+            f"state written raw, read through EvalBodySpatialVelocityInWorld / EvalBodyPoseInWorld: "
+            f"max difference {err:.1e} (SetFreeBodySpatialVelocity's argument order changed; unused)")
+
+
+def _check_one_step_per_step():
+    """rk3 fixed step, 1000 steps of dt 0.01 (t = 0.07: 0.07 - 0.06 > 0.01 in floating point): Drake
+    must take exactly one step per step."""
+    dt, steps = 0.01, 1000
+    adapter = DrakeAdapter(_dzhanibekov(steps), dt, "rk3")
+    try:
+        adapter.simulate(steps)  # advance() raises if the count is off
+        taken = adapter._engine_steps() - adapter._steps0
+    finally:
+        adapter.close()
+    return (taken == steps, float(taken), float(steps),
+            f"rk3 fixed step, {steps} steps of dt = {dt}: Drake took {taken} steps (a maximum step of "
+            f"exactly dt takes 1218: a tiny extra step after t = 0.07, 0.1, ...)")
+
+
+def _check_opt_in():
+    """Every offered error-controlled integrator for 0.2 s of a fast spin near the intermediate axis
+    (w = (0.1, 50, 0) rad/s, dt 0.01): Drake's derivative evaluations per simulated second (a
+    deterministic measure of the work); each above the bound must be opt-in."""
+    dt, steps = 0.01, 20
+    pb = Problem("trap-opt-in", "", Body(1.0, np.diag([1.0, 2.0, 3.0])),
+                 InitialState(np.zeros(3), [1.0, 0.0, 0.0, 0.0], np.zeros(3), [0.1, 50.0, 0.0]),
+                 gravity=(0.0, 0.0, 0.0), duration_steps=steps)
+    bound = DRAKE_OPT_IN_DERIVATIVES_PER_SIMULATED_SECOND
+    rates = {}
+    for name in DrakeAdapter.offered_integrators():
+        if integrator_scheme(name)[1] is None:
+            continue
+        adapter = DrakeAdapter(pb, dt, name)
+        try:
+            adapter.simulate(steps)
+            rates[name] = adapter._integrator.get_num_derivative_evaluations() / (steps * dt)
+        finally:
+            adapter.close()
+    slow = {n: r for n, r in rates.items() if r > bound}
+    not_opt_in = sorted(n for n in slow if n not in DrakeAdapter.opt_in_integrators)
+    default_max = max((r for n, r in rates.items() if n not in DrakeAdapter.opt_in_integrators), default=0.0)
+    shown = ", ".join(f"{n} {r:.3g}" for n, r in sorted(rates.items(), key=lambda item: -item[1]))
+    return (not not_opt_in, default_max, bound,
+            f"derivative evaluations per simulated second on a 50 rad/s spin: {shown}; above "
+            f"{bound:g} and not opt-in: {not_opt_in or 'none'}")

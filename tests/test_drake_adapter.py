@@ -1,0 +1,404 @@
+"""The Drake adapter against real Drake (pydrake): coordinates, settings, maps, traps, the truth.
+
+Conformance (``test_adapter_conformance.py``) and the convention self-checks
+(``test_selfcheck.py``) run on Drake through the registry; the engine-vs-map checks of the fixed-step
+explicit integrators live in ``test_engine_maps.py``.  Here: what is Drake's own.
+
+- the raw coordinates are [q (w, x, y, z), x, w world, v world] and the time derivatives are those of
+  the map functions (quaternion rate 1/2 (0, w) q, world w);
+- every setting the adapter changes is read back from Drake, and Drake's defaults are as recorded;
+- each trap check passes, and fails when the adapter stops handling its trap;
+- Drake's fixed-step RK5 at a small step reproduces the closed-form and the numerical truth (an
+  independent cross-check of the truth oracles);
+- scheme identification names the maps; opt-in integrators do not run by default.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pydrake = pytest.importorskip("pydrake", reason="drake not installed (pip install 'freebody[drake]')")
+
+from pydrake.multibody.plant import MultibodyPlant, MultibodyPlantConfig  # noqa: E402
+from pydrake.multibody.tree import RotationalInertia, SpatialInertia  # noqa: E402
+from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator  # noqa: E402
+
+from freebody.adapters import drake_adapter as D  # noqa: E402
+from freebody.adapters.base import EngineDiverged, load_adapter  # noqa: E402
+from freebody.adapters.drake_adapter import DrakeAdapter  # noqa: E402
+from freebody.input import load_case  # noqa: E402
+from freebody.reference_impl.engine_maps import (DRAKE_SEMI_IMPLICIT, DRAKE_TABLEAUS,  # noqa: E402
+                                                 drake_time_derivatives)
+from freebody.reference_impl.integrators import simulate as map_simulate  # noqa: E402
+from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
+from freebody.reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec  # noqa: E402
+from freebody.reference_impl.truth import truth_trajectory  # noqa: E402
+from freebody.run import RunSpec, execute  # noqa: E402
+from freebody.run.matrix import expand  # noqa: E402
+from freebody.run.selfcheck import run_trap_checks  # noqa: E402
+
+# --- tolerances ----------------------------------------------------------------------------------
+# Drake's time derivatives against drake_time_derivatives at one state: the same formulas in another
+# order of operations (Drake's articulated-body algorithm, Eigen), relative to the largest entry;
+# measured 2e-16.
+DERIVATIVES_RTOL = 1e-13
+# A setting read back from Drake (copied doubles; the inertia through SpatialInertia's unit
+# inertia): measured exact or one rounding.
+READBACK_RTOL = 1e-14
+# Drake's fixed-step RK5 at dt = 1e-3 on dzhanibekov against the truth oracles.  Over the first 4 s
+# (before the flip near 7.9 s) RK5's own error is below round-off: measured 4.4e-14 rad against the
+# closed form (Jacobi elliptic functions) and 1.55e-11 against the numerical oracle (DOP853 at
+# 1e-12: its own error, the closed form is as far from it).  Bounds: ...
+RK5_VS_CLOSED_FORM_RAD = 1e-12
+RK5_VS_NUMERICAL_RAD = 1e-10
+RK5_TRUTH_DT = 1e-3
+RK5_TRUTH_SECONDS = 4.0
+# ... and over the whole 10 s, where the flip amplifies round-off about 1e3-fold (the case's 1-ulp
+# spread reaches 5e-10): measured 8.5e-10 against the closed form, the map quat-rate-rk5 itself
+# 9.2e-10, closed form against numerical 2.8e-10.
+RK5_WHOLE_CASE_RAD = 1e-8
+# The quaternion norm of the discrete plant after 10 s of dzhanibekov at dt 0.01 (measured 1.412:
+# sqrt(1 + h^2 |w|^2 / 4) per step, |w| ~ 5); the test wants it between these.
+NORM_AFTER_10S = (1.3, 1.5)
+
+I_FULL = matrix_from_quat(quat_from_rotvec([0.4, -0.7, 0.2])) @ np.diag([1.0, 2.0, 2.5]) \
+    @ matrix_from_quat(quat_from_rotvec([0.4, -0.7, 0.2])).T
+Q0 = quat_from_rotvec([0.9, 0.3, -1.1])
+FIXED_EXPLICIT = ("discrete", "explicit-euler", "semi-explicit-euler", "rk2", "rk3",
+                  "bogacki-shampine3", "rk5")
+MAP_OF = {"discrete": DRAKE_SEMI_IMPLICIT, "semi-explicit-euler": DRAKE_SEMI_IMPLICIT,
+          "explicit-euler": "quat-rate-euler", "rk2": "quat-rate-rk2", "rk3": "quat-rate-rk3",
+          "bogacki-shampine3": "quat-rate-bs3", "rk5": "quat-rate-rk5"}
+
+
+def _problem(loads=(), gravity=(0.1, -0.2, -9.81), w0=(0.7, -2.0, 1.3), duration=1.0) -> Problem:
+    return Problem("drake-test", "", Body(1.7, I_FULL),
+                   InitialState([1.0, -2.0, 3.0], Q0, [0.3, -0.2, 0.5], w0), gravity, tuple(loads),
+                   duration=duration)
+
+
+@pytest.fixture
+def make_adapter():
+    made = []
+
+    def make(problem, dt, integrator):
+        a = DrakeAdapter(problem, dt, integrator)
+        made.append(a)
+        return a
+
+    yield make
+    for a in made:
+        a.close()
+
+
+# --- registry, integrators ---------------------------------------------------------------------
+
+def test_registered_with_its_integrators():
+    assert load_adapter("drake") is DrakeAdapter
+    offered = DrakeAdapter.offered_integrators()
+    assert offered[0] == "discrete"
+    assert set(MAP_OF) <= set(offered)
+    assert {"implicit-euler", "velocity-implicit-euler", "radau1", "radau3"} <= set(offered)
+    for name in offered:
+        scheme, accuracy = D.integrator_scheme(name)
+        assert (scheme is None) == (name == "discrete")
+        assert (accuracy is not None) == ("-accuracy-" in name)
+        if accuracy is not None:
+            assert name.endswith(f"-accuracy-{accuracy:.0e}".replace("e-0", "e-"))
+    assert set(DrakeAdapter.opt_in_integrators) <= set(offered)
+    assert DrakeAdapter.precisions == ("float64",)
+    assert DrakeAdapter.engine_version().startswith("1.")
+    assert set(DrakeAdapter.selfcheck_integrators()) <= set(offered)
+
+
+def test_opt_in_integrators_run_only_when_named():
+    pb = load_case("quiz")
+    default = {s.integrator for s in expand([pb], ["drake"], None, None, None)}
+    assert default and not default & set(DrakeAdapter.opt_in_integrators)
+    assert default == set(DrakeAdapter.offered_integrators()) - set(DrakeAdapter.opt_in_integrators)
+    named = {s.integrator for s in expand([pb], ["drake"], ["drake:radau3-accuracy-1e-10"], None, None)}
+    assert named == {"radau3-accuracy-1e-10"}
+    every = {s.integrator for s in expand([pb], ["drake"], None, None, None, all_integrators=True)}
+    assert every == set(DrakeAdapter.offered_integrators())
+
+
+# --- coordinates and dynamics --------------------------------------------------------------------
+
+@pytest.mark.parametrize("integrator", ["discrete", "rk5", "rk5-accuracy-1e-6"])
+def test_raw_coordinates_are_q_x_w_v_in_world(integrator, make_adapter):
+    """What the adapter writes raw reads back through Drake's frame-explicit world getters: the
+    quaternion (w, x, y, z) body -> world, the COM, w and v in WORLD."""
+    pb = _problem()
+    a = make_adapter(pb, 0.01, integrator)
+    raw = a.plant.GetPositionsAndVelocities(a.context)
+    init = pb.initial
+    np.testing.assert_array_equal(raw, np.concatenate([init.quaternion_wxyz, init.position,
+                                                       init.angular_velocity, init.linear_velocity]))
+    X = a.plant.EvalBodyPoseInWorld(a.context, a.body)
+    V = a.plant.EvalBodySpatialVelocityInWorld(a.context, a.body)
+    np.testing.assert_allclose(X.rotation().matrix(), matrix_from_quat(init.quaternion_wxyz), atol=1e-15)
+    np.testing.assert_allclose(X.translation(), init.position, atol=0)
+    np.testing.assert_allclose(V.rotational(), init.angular_velocity, atol=0)
+    np.testing.assert_allclose(V.translational(), init.linear_velocity, atol=0)
+    tr = a.simulate(0)
+    np.testing.assert_array_equal(tr.angular_velocity[0], init.angular_velocity)
+
+
+def test_time_derivatives_are_the_maps(make_adapter):
+    """Drake's derivatives at a general state (a stored quaternion of norm 2, a wrench on the port)
+    are drake_time_derivatives': qdot = 1/2 (0, w) q linear in the stored q, wdot from the
+    normalised rotation, world w."""
+    f, tau = np.array([0.5, -1.0, 2.0]), np.array([0.3, 0.2, -0.4])
+    a = make_adapter(_problem(), 0.01, "rk5")
+    y = a.plant.GetPositionsAndVelocities(a.context).copy()
+    y[0:4] *= 2.0
+    a.plant.SetPositionsAndVelocities(a.context, y)
+    a._put_wrench(np.concatenate([f, tau]))
+    got = a.plant.EvalTimeDerivatives(a.context).CopyToVector()
+    want = drake_time_derivatives(y, 1.7, I_FULL, np.array([0.1, -0.2, -9.81]), f, tau)
+    assert np.max(np.abs(got - want)) <= DERIVATIVES_RTOL * np.max(np.abs(want))
+
+
+def test_quaternion_norm_is_reported_raw_and_the_orientation_normalised(make_adapter):
+    pb = load_case("dzhanibekov")
+    a = make_adapter(pb, 0.01, "discrete")
+    tr = a.simulate(pb.steps(0.01))
+    raw = a.plant.GetPositions(a.context)[0:4]
+    assert NORM_AFTER_10S[0] < np.linalg.norm(raw) < NORM_AFTER_10S[1]
+    assert a.quaternion_norm[-1] == pytest.approx(np.linalg.norm(raw), rel=1e-15)
+    assert a.quaternion_norm_drift == pytest.approx(np.max(np.abs(a.quaternion_norm - 1.0)))
+    np.testing.assert_allclose(np.linalg.norm(tr.quaternion_wxyz, axis=1), 1.0, rtol=0, atol=1e-15)
+    assert geodesic_angle(tr.quaternion_wxyz[-1], raw / np.linalg.norm(raw)) < 1e-15
+    # Drake's own pose read-back hides the drift
+    pose_q = a.plant.EvalBodyPoseInWorld(a.context, a.body).rotation().ToQuaternion().wxyz()
+    assert np.linalg.norm(pose_q) == pytest.approx(1.0, abs=1e-15)
+
+
+# --- settings --------------------------------------------------------------------------------------
+
+def test_engine_defaults_are_as_recorded():
+    """The defaults the adapter records, read from a fresh Drake: time step, gravity, the
+    Simulator's integrator, the floating joint's damping."""
+    assert MultibodyPlantConfig().time_step == 0.001
+    plant = MultibodyPlant(0.0)
+    np.testing.assert_array_equal(plant.gravity_field().gravity_vector(), [0.0, 0.0, -9.81])
+    plant.AddRigidBody("b", SpatialInertia.MakeFromCentralInertia(1.0, np.zeros(3),
+                                                                 RotationalInertia(1.0, 2.0, 2.5)))
+    plant.Finalize()
+    joint = D._floating_joint(plant)
+    assert joint.type_name() == "quaternion_floating"
+    sim = Simulator(plant)
+    integ = sim.get_integrator()
+    assert type(integ).__name__ == "RungeKutta3Integrator"
+    assert (integ.get_fixed_step_mode(), integ.get_maximum_step_size(), integ.get_target_accuracy()) == \
+        (False, 0.1, 1e-4)
+    D._check_no_damping(joint, sim.get_context())  # raises if Drake ever adds damping by default
+    assert np.isnan(ResetIntegratorFromFlags(sim, "runge_kutta5", 0.01).get_target_accuracy())
+
+
+@pytest.mark.parametrize("integrator", ["discrete", "rk3", "rk5-accuracy-1e-10"])
+def test_settings_read_back(integrator, make_adapter):
+    dt, g = 0.005, (0.1, -0.2, -9.81)
+    a = make_adapter(_problem(gravity=g), dt, integrator)
+    s, plant = a.settings, a.plant
+    assert s["time_step"] == {"default": 0.001, "set": plant.time_step()}
+    assert plant.time_step() == (dt if integrator == "discrete" else 0.0)
+    assert s["gravity"] == {"default": [0.0, 0.0, -9.81], "set": list(g)}
+    np.testing.assert_array_equal(plant.gravity_field().gravity_vector(), g)
+    assert a.body.default_mass() == 1.7
+    np.testing.assert_allclose(a.body.default_rotational_inertia().CopyToFullMatrix3(), I_FULL,
+                               rtol=READBACK_RTOL, atol=READBACK_RTOL)
+    if integrator == "discrete":
+        assert set(s) == {"time_step", "gravity"}
+        return
+    integ = a.simulator.get_integrator()
+    scheme, accuracy = D.integrator_scheme(integrator)
+    assert s["integration_scheme"] == {"default": "RungeKutta3Integrator", "set": scheme}
+    assert s["fixed_step_mode"] == {"default": False, "set": accuracy is None}
+    assert integ.get_fixed_step_mode() == (accuracy is None)
+    assert s["maximum_step_size"]["set"] == integ.get_maximum_step_size() == dt * (1 + D.DRAKE_STEP_SLACK)
+    if accuracy is not None:
+        assert s["target_accuracy"] == {"default": 1e-4, "set": integ.get_target_accuracy()} and \
+            integ.get_target_accuracy() == accuracy
+    else:
+        assert "target_accuracy" not in s
+
+
+# --- loads ------------------------------------------------------------------------------------------
+
+LOADS = (Load(force=[0.5, -1.0, 2.0], body_point=[0.1, 0.2, -0.3], start=0.02, end=0.12),
+         Load(force=[1.0, 0.3, -0.2], point=[2.0, -1.5, 0.9], start=0.05, steps=7),
+         Load(torque=[0.05, 0.0, -0.1], body_torque=[0.1, -0.2, 0.3], start=0.08, end=0.17))
+
+
+@pytest.mark.parametrize("integrator", FIXED_EXPLICIT)
+def test_loads_at_points_and_couples_follow_the_map(integrator, make_adapter):
+    """Forces at world and body points and couples of both frames, switching on and off: the
+    run is its map's (the wrench of a step evaluated at the step's start, held over every stage)
+    to round-off; applying the loads at the stage's state instead would be O(h^2) off."""
+    pb = _problem(LOADS, duration=0.3)
+    tr = make_adapter(pb, 0.01, integrator).simulate(30)
+    mapped = map_simulate(pb, MAP_OF[integrator], 0.01, 30)
+    assert geodesic_angle(tr.quaternion_wxyz, mapped.quaternion_wxyz).max() < 1e-13
+    np.testing.assert_allclose(tr.angular_velocity, mapped.angular_velocity, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(tr.linear_velocity, mapped.linear_velocity, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(tr.position, mapped.position, rtol=0, atol=1e-13)
+
+
+# --- traps ------------------------------------------------------------------------------------------
+
+def test_every_trap_check_passes():
+    results = run_trap_checks("drake")
+    assert len(results) == len(DrakeAdapter.trap_checks()) == 5
+    bad = [f"{r.check}: {r.detail}" for r in results if not r.passed]
+    assert not bad, "; ".join(bad)
+
+
+def _trap(name_part: str):
+    (check,) = [c for n, c in DrakeAdapter.trap_checks().items() if name_part in n]
+    return check
+
+
+def test_norm_trap_fails_when_the_adapter_hides_the_drift(monkeypatch):
+    original = DrakeAdapter._trajectory
+
+    def normalised(self, Y, k0):
+        Y = Y.copy()
+        Y[:, 0:4] /= np.linalg.norm(Y[:, 0:4], axis=1)[:, None]  # as Drake's pose read-back
+        return original(self, Y, k0)
+    assert _trap("norm")()[0]
+    monkeypatch.setattr(DrakeAdapter, "_trajectory", normalised)
+    assert not _trap("norm")()[0]
+
+
+def test_accuracy_trap_fails_without_the_label_or_the_setting(monkeypatch):
+    assert _trap("accuracy")()[0]
+    monkeypatch.setitem(DrakeAdapter.conventions, "target accuracy", "the error is below the accuracy")
+    assert not _trap("accuracy")()[0]
+    monkeypatch.undo()
+    monkeypatch.setattr(DrakeAdapter, "record_setting", lambda self, key, default, value: None)
+    assert not _trap("accuracy")()[0]
+
+
+def test_layout_trap_fails_when_w_and_v_are_swapped(monkeypatch):
+    original = DrakeAdapter.build
+
+    def swapped(self):
+        original(self)
+        v = self.plant.GetVelocities(self.context)
+        self.plant.SetVelocities(self.context, np.concatenate([v[3:6], v[0:3]]))
+    monkeypatch.setattr(DrakeAdapter, "build", swapped)
+    assert not _trap("layout")()[0]
+
+
+def test_time_grid_trap_is_real_and_the_check_fails_without_the_slack(monkeypatch):
+    assert _trap("one Drake step")()[0]
+    monkeypatch.setattr(D, "DRAKE_STEP_SLACK", 0.0)
+    with pytest.raises(RuntimeError, match="steps for 1000 steps"):
+        _trap("one Drake step")()
+    results = {r.check: r for r in run_trap_checks("drake")}
+    assert not results["one Drake step per step (time grid slack)"].passed
+
+
+def test_opt_in_trap_fails_when_a_slow_integrator_is_not_opt_in(monkeypatch):
+    monkeypatch.setattr(DrakeAdapter, "opt_in_integrators", ("implicit-euler-accuracy-1e-6",))
+    passed, value, bound, detail = _trap("opt-in")()
+    assert not passed and "radau3-accuracy-1e-10" in detail and value > bound
+
+
+def test_fixed_step_implicit_results_depend_on_the_newton_accuracy():
+    """Documented trap: a fixed-step implicit integrator's Newton stops at a tolerance from the
+    accuracy in use; freebody keeps Drake's default (unset: 1e-1), which differs from a tight one."""
+    pb = load_case("dzhanibekov")
+    a = DrakeAdapter(pb, 0.01, "implicit-euler")
+    try:
+        loose = a.simulate(300).quaternion_wxyz[-1]
+        assert np.isnan(a.simulator.get_integrator().get_target_accuracy())
+    finally:
+        a.close()
+    b = DrakeAdapter(pb, 0.01, "implicit-euler")
+    try:
+        b.simulator.get_integrator().set_target_accuracy(1e-10)
+        b.simulator.Initialize()
+        tight = b.simulate(300).quaternion_wxyz[-1]
+    finally:
+        b.close()
+    assert geodesic_angle(loose, tight) > 1e-7
+
+
+def test_drake_giving_up_is_a_divergence_other_errors_are_not(monkeypatch, make_adapter):
+    a = make_adapter(_problem(), 0.01, "rk5-accuracy-1e-6")
+    advance_to = a.simulator.AdvanceTo
+    calls = []
+
+    class Sim:
+        def AdvanceTo(self, t):
+            calls.append(t)
+            if len(calls) == 4:
+                raise RuntimeError("Error control wants to select step smaller than minimum allowed (1e-14)")
+            return advance_to(t)
+    monkeypatch.setattr(a, "simulator", Sim())
+    with pytest.raises(EngineDiverged) as info:
+        a.advance(10)
+    assert len(info.value.trajectory) == 4 and info.value.t == pytest.approx(0.03)
+    assert "minimum" in info.value.reason and a.k == 3
+
+    b = make_adapter(_problem(), 0.01, "rk5")
+
+    class Broken:
+        def AdvanceTo(self, t):
+            raise RuntimeError("InputPort::Eval(): required InputPort[3] is not connected")
+    monkeypatch.setattr(b, "simulator", Broken())
+    with pytest.raises(RuntimeError, match="not connected"):
+        b.advance(3)
+
+
+# --- the truth, cross-checked --------------------------------------------------------------------
+
+def test_drake_rk5_at_a_small_step_reproduces_both_truth_oracles():
+    """An independent check of freebody's truth oracles: Drake's RK5 (another code, another state:
+    an unnormalised quaternion, world w) at dt = 1e-3 on dzhanibekov."""
+    pb = load_case("dzhanibekov")
+    steps = pb.steps(RK5_TRUTH_DT)
+    a = DrakeAdapter(pb, RK5_TRUTH_DT, "rk5")
+    try:
+        tr = a.simulate(steps)
+    finally:
+        a.close()
+    closed = truth_trajectory(pb, RK5_TRUTH_DT, steps, "closed-form")
+    numerical = truth_trajectory(pb, RK5_TRUTH_DT, steps, "numerical")
+    head = pb.steps(RK5_TRUTH_DT, RK5_TRUTH_SECONDS) + 1
+    err_closed = geodesic_angle(tr.quaternion_wxyz, closed.quaternion_wxyz)
+    err_numerical = geodesic_angle(tr.quaternion_wxyz, numerical.quaternion_wxyz)
+    assert err_closed[:head].max() <= RK5_VS_CLOSED_FORM_RAD, err_closed[:head].max()
+    assert err_numerical[:head].max() <= RK5_VS_NUMERICAL_RAD, err_numerical[:head].max()
+    w_scale = np.max(np.abs(closed.angular_velocity))
+    dw = np.max(np.abs(tr.angular_velocity[:head] - closed.angular_velocity[:head]))
+    assert dw <= RK5_VS_CLOSED_FORM_RAD * w_scale, dw
+    assert err_closed.max() <= RK5_WHOLE_CASE_RAD and err_numerical.max() <= RK5_WHOLE_CASE_RAD
+
+
+# --- scheme identification through the harness --------------------------------------------------
+
+@pytest.mark.parametrize("integrator", ["discrete", "explicit-euler", "rk3"])
+def test_identification_names_the_map(integrator):
+    pb = load_case("world_torque")
+    out = execute(RunSpec(pb, "drake", integrator, 0.01, pb.steps(0.01)))
+    match = out.result.matches_reference
+    assert out.result.status == "ok", out.result.message
+    assert match["integrator"] == MAP_OF[integrator], match
+    assert match["max_orientation_diff_rad"] <= match["threshold_rad"]
+
+
+def test_the_maps_are_registered():
+    for name in (DRAKE_SEMI_IMPLICIT, *DRAKE_TABLEAUS):
+        assert map_simulate(_problem(), name, 0.01, 3).quaternion_wxyz.shape == (4, 4)
+
+
+# --- bare loop ----------------------------------------------------------------------------------
+
+def test_bare_loop_steps_the_adapters_world(make_adapter):
+    a = make_adapter(_problem(), 0.01, "discrete")
+    a.simulate(5)
+    out = a.bare_loop(7)()
+    assert len(out) == 8 and a.context.get_time() == pytest.approx(0.12)
