@@ -10,12 +10,15 @@ DEFAULT_OUT = "reports/demo"
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "demo", help="teaching figures: integrator error, the push quiz, the Dzhanibekov flip",
-        description="Write slide-ready figures (PNG and SVG) and a Markdown page explaining them. "
+        description="Write slide-ready 16:9 figures (PNG 1600x900 and SVG, the exact motion drawn on "
+                    "top) and a Markdown page with a sentence for every number. "
                     "integrators: signed energy error and orientation error of euler-matrix, "
-                    "euler-matrix-gs, euler-quat, lie-euler, symplectic-splitting and rk4, R's "
-                    "orthonormality, convergence slopes; quiz: the "
-                    "lecture's push quiz in closed form and on every engine; dzhanibekov: the flip on "
-                    "every engine and a GIF of the tumbling box.  No NAME: all three.")
+                    "euler-matrix-gs, euler-quat, lie-euler, symplectic-splitting, implicit-midpoint "
+                    "and rk4, R's orthonormality, convergence slopes (and why euler-matrix-gs fits "
+                    "1.27); quiz: the lecture's push quiz in closed form and on every engine; "
+                    "dzhanibekov: the flip and its times on every engine, and a 960x540 GIF of the "
+                    "tumbling box.  No NAME: all three.  The Jupyter lessons in examples/ teach the "
+                    "same step by step (docs/teaching.md).")
     p.add_argument("names", nargs="*", metavar="NAME", help=f"demo(s) to make: {', '.join(DEMO_NAMES)}")
     p.add_argument("--engine", action="append", metavar="NAME",
                    help="engine for quiz and dzhanibekov (repeatable); default: every registered engine")

@@ -3,15 +3,22 @@
 - ``integrators``: the signed energy error (explicit Euler gains energy, the symplectic splitting's
   error oscillates and stays bounded) and the orientation error against time for the lecture's
   schemes on a tumbling body, the orthonormality error of R without Gram-Schmidt, and the
-  convergence plot with fitted slopes (about 1 for the Euler family, 2 for the splitting, 4 for RK4).
+  convergence plot with fitted slopes (about 1 for the Euler family, 2 for the splitting, 4 for RK4),
+  with why ``euler-matrix-gs`` fits more than 1 on this body (:func:`gram_schmidt_one_step`).
 - ``quiz``: the lecture's one-step push quiz worked out in closed form for explicit Euler, checked
   against freebody's ``euler-matrix``, and set beside the engines' semi-implicit Euler maps
   (``semi-implicit-explicit-gyro`` / ``semi-implicit-implicit-gyro``) and RK4.
 - ``dzhanibekov``: the flip of the intermediate axis in body- and world-frame angular velocity and the
-  energy error for each engine, and a GIF of the tumbling box.
+  signed energy error for each engine, the flip times of each run against the truth's, and a GIF of
+  the tumbling box beside its angular velocity.
+
+Every slide is 16:9 (:data:`SLIDE_SIZE_IN` at :data:`PNG_DPI`: 1600 x 900 px); where a slide shows the
+exact motion, the truth is drawn on top of the schemes (:data:`TRUTH_STYLE`, highest z-order, first in
+the legend, ``gid="truth"``).  Every number a page prints comes with a sentence saying what it is.
 
 Figures are drawn with matplotlib's object API on the Agg canvas (no pyplot state, no display);
-matplotlib is imported inside the functions so ``import freebody.tools.demo`` stays light.
+matplotlib is imported inside the functions so ``import freebody.tools.demo`` stays light.  The
+Jupyter lessons in ``examples/`` (docs/teaching.md) teach the same material step by step.
 """
 from __future__ import annotations
 
@@ -27,7 +34,7 @@ from ..adapters.base import REFERENCE_ENGINE
 from ..input.casefile import load_case
 from ..reference_impl.conventions import Trajectory, angular_velocity_body_from_world
 from ..reference_impl.integrators import INTEGRATORS, simulate
-from ..reference_impl.problem import Problem
+from ..reference_impl.problem import Body, Problem
 from ..reference_impl.rotations import geodesic_angle, matrix_from_quat
 from ..reference_impl.truth import truth_trajectory
 
@@ -52,23 +59,44 @@ INTEGRATORS_DT = 0.01  # s: coarse enough that the first-order schemes' errors a
 INTEGRATORS_DURATION = 20.0  # s
 CONVERGENCE_DURATION = 2.0  # s: short enough that explicit Euler's error (< 0.2 rad) has not saturated
 CONVERGENCE_DTS = (0.1, 0.05, 0.025, 0.0125, 0.00625, 0.003125)  # s
+# Why euler-matrix-gs fits a slope above 1 (gram_schmidt_one_step): one step this short measures
+# the one-step error's h^2 coefficient to about 1% (0.168 against the predicted 1/6 on long_horizon)
+GS_ONE_STEP_DT = 1e-3  # s
+# ...and a body like long_horizon's but without I1 + I2 = I3, where Gram-Schmidt's h^2 turn does not
+# cancel explicit Euler's (kg m^2, principal moments; same initial state).
+GS_CONTRAST_INERTIA = (1.0, 2.0, 2.5)
 
 # Quiz demo: the quiz case at the lecture's step.
 QUIZ_CASE = "quiz"
 QUIZ_DT = 0.1  # s
+# An engine's quiz answer names its map when its x2 is within this of 1, 2 or 1.5 h^2 F_x / m
+# (explicit, semi-implicit Euler, exact over a step): float32 engines are 1e-6 off, the maps 0.5 apart.
+QUIZ_FAMILY_ATOL = 0.05
 
 # Dzhanibekov demo.
 DZHANIBEKOV_CASE = "dzhanibekov"
 DZHANIBEKOV_DT = 0.01  # s
 DZHANIBEKOV_DURATION = 10.0  # s
 REFERENCE_IN_DZHANIBEKOV = ("euler-quat", "symplectic-splitting", "rk4")  # the reference's lines beside the engines'
+# A run's flip counts as on time within this of the truth's: at dt = 0.01 s the engines'
+# first-order maps flip 0.03 s late or early, explicit Euler's return flip comes seconds early.
+FLIP_ON_TIME_S = 0.1
 GIF_FRAMES = 80
 GIF_FPS = 10
+GIF_SIZE_IN = (9.6, 5.4)  # inches: 16:9, 960 x 540 px at GIF_DPI
+GIF_DPI = 100
 
 SLIDE_RC = {"font.size": 16, "axes.titlesize": 18, "axes.labelsize": 16, "legend.fontsize": 12,
             "xtick.labelsize": 14, "ytick.labelsize": 14, "lines.linewidth": 2.2,
             "axes.grid": True, "grid.alpha": 0.3, "svg.hashsalt": "freebody", "figure.dpi": 100}
-PNG_DPI = 150
+SLIDE_SIZE_IN = (12.8, 7.2)  # inches: 16:9
+PNG_DPI = 125  # SLIDE_SIZE_IN at this dpi: 1600 x 900 px
+# The exact motion on every slide: black, dashed (the schemes that match it show through the gaps),
+# drawn first (first in the legend) but on top: z-order above lines (2) and bars (1), below the
+# legend (5).
+TRUTH_ZORDER = 4
+TRUTH_STYLE = {"color": "black", "linestyle": (0, (6, 3)), "linewidth": 2.4, "zorder": TRUTH_ZORDER}
+TRUTH_GID = "truth"
 
 
 @dataclass
@@ -97,8 +125,8 @@ def run_demo(name: str, out_dir: Path, engines: list[str] | None = None, log=Non
 
 # --- drawing helpers ----------------------------------------------------------------------------
 
-def _figure(nrows: int = 1, ncols: int = 1, size=(12, 6.75), **kw):
-    """A 16:9 figure on an Agg canvas (no pyplot) and its axes."""
+def _figure(nrows: int = 1, ncols: int = 1, size=SLIDE_SIZE_IN, **kw):
+    """A figure (16:9 unless ``size`` says otherwise) on an Agg canvas (no pyplot) and its axes."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -114,6 +142,18 @@ def _save(fig, out_dir: Path, stem: str) -> Path:
     fig.savefig(base.with_suffix(".png"), dpi=PNG_DPI, metadata={"Software": None})
     fig.savefig(base.with_suffix(".svg"), metadata={"Date": None})
     return base
+
+
+def _truth_line(ax, x, y, label: str = "truth"):
+    """The exact motion's curve in :data:`TRUTH_STYLE`; call it before the schemes' lines so that the
+    legend lists it first (its z-order puts it on top all the same)."""
+    (line,) = ax.plot(x, y, label=label, gid=TRUTH_GID, **TRUTH_STYLE)
+    return line
+
+
+def _truth_hline(ax, y: float, label: str = "truth"):
+    """A horizontal truth line (e.g. the conserved energy's zero error) in :data:`TRUTH_STYLE`."""
+    return ax.axhline(y, label=label, gid=TRUTH_GID, **TRUTH_STYLE)
 
 
 def _rc():
@@ -136,13 +176,13 @@ def _signed_energy_error(problem: Problem, tr: Trajectory) -> np.ndarray:
     return (E - E[0]) / ke[0]
 
 
-def _rel_energy_error(problem: Problem, tr: Trajectory) -> np.ndarray:
-    """|E(t) - E(0)| / KE(0), shape (N,): the size of the energy drift (log axes)."""
-    return np.abs(_signed_energy_error(problem, tr))
-
-
 def _with(problem: Problem, duration: float, dt: float) -> Problem:
     return dataclasses.replace(problem, duration=duration, duration_steps=None, dts=(dt,))
+
+
+def _gains(e: float) -> str:
+    """'gains' or 'loses' for a signed energy error."""
+    return "gains" if e > 0 else "loses"
 
 
 # --- integrators ------------------------------------------------------------------------------
@@ -163,11 +203,16 @@ def integrators_data(problem: Problem, dt: float, duration: float) -> dict:
     return out
 
 
-def convergence_data(problem: Problem, duration: float, dts=CONVERGENCE_DTS) -> dict:
-    """Per lecture scheme: the max orientation error (rad) over [0, duration] at each dt, and the
-    least-squares slope of log(error) against log(dt) over the errors in tol.DEMO_SLOPE_FIT_RANGE_RAD."""
+def convergence_data(problem: Problem, duration: float, dts=CONVERGENCE_DTS,
+                     names=LECTURE_SCHEMES) -> dict:
+    """Per scheme of ``names``: the max orientation error (rad) over [0, duration] at each dt, the
+    least-squares slope of log(error) against log(dt) over the errors in
+    tol.DEMO_SLOPE_FIT_RANGE_RAD, the local slopes log2(e(dt_i) / e(dt_i+1)) / log2(dt_i / dt_i+1)
+    between neighbouring steps (len(dts) - 1), and error / dt at the finest step (rad/s: the
+    first-order coefficient, once the local slopes have settled at 1)."""
     out = {}
-    for name in LECTURE_SCHEMES:
+    dt_arr = np.array(dts, dtype=float)
+    for name in names:
         errs = []
         for dt in dts:
             steps = int(round(duration / dt))
@@ -177,9 +222,44 @@ def convergence_data(problem: Problem, duration: float, dts=CONVERGENCE_DTS) -> 
         errs = np.array(errs)
         lo, hi = tol.DEMO_SLOPE_FIT_RANGE_RAD
         use = (errs > lo) & (errs < hi)
-        slope = float(np.polyfit(np.log(np.array(dts)[use]), np.log(errs[use]), 1)[0]) if use.sum() >= 2 else None
-        out[name] = {"dt": list(dts), "error": errs.tolist(), "slope": slope, "order": INTEGRATORS[name].order}
+        slope = float(np.polyfit(np.log(dt_arr[use]), np.log(errs[use]), 1)[0]) if use.sum() >= 2 else None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            local = np.log(errs[:-1] / errs[1:]) / np.log(dt_arr[:-1] / dt_arr[1:])
+        out[name] = {"dt": list(dts), "error": errs.tolist(), "slope": slope, "order": INTEGRATORS[name].order,
+                     "fitted": use.tolist(), "local_slopes": local.tolist(),
+                     "error_per_dt": float(errs[-1] / dt_arr[-1])}
     return out
+
+
+def gram_schmidt_one_step(problem: Problem, h: float = GS_ONE_STEP_DT) -> dict:
+    """Why ``euler-matrix-gs`` has a small first-order error on some bodies: its one-step
+    orientation error from the initial state, measured and predicted, beside ``lie-euler``'s.
+
+    One step of explicit Euler on the rotations with w frozen misses the exact motion's
+    h^2/2 dw/dt (Magnus); Gram-Schmidt after R + h [w] R turns R by a further -h^2 k, with
+    k_b = (w_y w_z, -w_x w_z, w_x w_y) / 2 in the body frame (from the Cholesky factor of
+    R^T R = 1 + h^2 (|w|^2 - w_b w_b^T)).  So the one-step errors are h^2 |dw_b/dt| / 2 (lie-euler)
+    and h^2 |dw_b/dt / 2 + k_b| (euler-matrix-gs), dw_b/dt from Euler's equations.  Returns the
+    measured angle / h^2 and the predicted coefficient for both (rad/s^2), and w_b (3,) rad/s,
+    dw_b/dt (3,) rad/s^2, k_b (3,) 1/s^2 at t = 0, body frame.
+    """
+    truth = truth_trajectory(problem, h, 1)
+    measured = {name: float(geodesic_angle(truth.quaternion_wxyz[1],
+                                           simulate(problem, name, h, 1).quaternion_wxyz[1])) / h ** 2
+                for name in ("euler-matrix-gs", "lie-euler")}
+    I_b = problem.body.I_body
+    w_b = problem.R0.T @ np.asarray(problem.initial.angular_velocity, dtype=float)
+    wdot_b = problem.body.I_body_inv @ -np.cross(w_b, I_b @ w_b)
+    k_b = 0.5 * np.array([w_b[1] * w_b[2], -w_b[0] * w_b[2], w_b[0] * w_b[1]])
+    predicted = {"lie-euler": float(np.linalg.norm(wdot_b) / 2),
+                 "euler-matrix-gs": float(np.linalg.norm(wdot_b / 2 + k_b))}
+    return {"h": h, "measured": measured, "predicted": predicted, "w_b": w_b.tolist(),
+            "wdot_b": wdot_b.tolist(), "k_b": k_b.tolist()}
+
+
+def _with_inertia(problem: Problem, moments) -> Problem:
+    """The same problem with a diagonal body inertia diag(moments), kg m^2."""
+    return dataclasses.replace(problem, body=Body(problem.body.mass, np.diag(np.asarray(moments, dtype=float))))
 
 
 def demo_integrators(out_dir: Path, dt: float = INTEGRATORS_DT, duration: float = INTEGRATORS_DURATION,
@@ -189,7 +269,11 @@ def demo_integrators(out_dir: Path, dt: float = INTEGRATORS_DT, duration: float 
     base = load_case(INTEGRATORS_CASE)
     problem = _with(base, duration, dt)
     data = integrators_data(problem, dt, duration)
-    conv = convergence_data(_with(base, convergence_duration, dt), convergence_duration, convergence_dts)
+    conv_problem = _with(base, convergence_duration, dt)
+    conv = convergence_data(conv_problem, convergence_duration, convergence_dts)
+    contrast = convergence_data(_with_inertia(conv_problem, GS_CONTRAST_INERTIA), convergence_duration,
+                                convergence_dts, names=("euler-matrix-gs",))["euler-matrix-gs"]
+    gs_step = gram_schmidt_one_step(base)
     res = DemoOutput("integrators", out_dir / "integrators.md")
     with _rc():
         res.figures.extend(_plot_integrator_errors(data, dt, out_dir))
@@ -203,13 +287,12 @@ def demo_integrators(out_dir: Path, dt: float = INTEGRATORS_DT, duration: float 
                  "energy_max_signed": float(np.nanmax(data[n]["energy"]))} for n in LECTURE_SCHEMES}
     ortho = float(data["euler-matrix"]["orthonormality"][-1])
     res.facts = {"slopes": {n: conv[n]["slope"] for n in LECTURE_SCHEMES}, "final": final,
-                 "orthonormality_final": ortho}
-    rows = "\n".join(f"| `{n}` | {INTEGRATORS[n].summary} | {final[n]['energy']:+.2e} | "
-                     f"{final[n]['orientation']:.2e} | {_fmt_slope(conv[n]['slope'])} |"
-                     for n in LECTURE_SCHEMES)
-    zoom = final["symplectic-splitting"]
-    _write_page(res.page, _integrators_page(dt, duration, steps, convergence_duration, rows, ortho,
-                                            zoom["energy_min_signed"], zoom["energy_max_signed"]))
+                 "orthonormality_final": ortho, "convergence": conv,
+                 "gram_schmidt": {"one_step": gs_step, "contrast_inertia": list(GS_CONTRAST_INERTIA),
+                                  "contrast_slope": contrast["slope"],
+                                  "contrast_error_per_dt": contrast["error_per_dt"]}}
+    _write_page(res.page, _integrators_page(dt, duration, steps, convergence_duration, final, conv, ortho,
+                                            gs_step, contrast))
     return res
 
 
@@ -219,16 +302,16 @@ def _plot_integrator_errors(data: dict, dt: float, out_dir: Path) -> list[Path]:
     fig, axes = _figure(2, 1, sharex=True)
     ax_all, ax_zoom = axes[:, 0]
     for ax, names in ((ax_all, LECTURE_SCHEMES), (ax_zoom, ENERGY_ZOOM_SCHEMES)):
+        _truth_hline(ax, 0.0, label="truth: E conserved")
         for name in names:
             ax.plot(data[name]["t"], data[name]["energy"], color=SCHEME_COLORS[name], label=name,
                     linestyle=SCHEME_STYLES.get(name, "-"))
-        ax.axhline(0.0, color="black", linewidth=1.5, label="truth (E conserved)")
     ax_all.set(ylabel="(E(t) - E(0)) / KE(0)",
                title=f"Energy error, signed: explicit Euler gains energy (tumbling body, dt = {dt:g} s)")
     ax_zoom.set(xlabel="t (s)", ylabel="(E(t) - E(0)) / KE(0)",
                 title="Zoom: the splitting's error oscillates, bounded; the implicit midpoint's stays at 0")
     ax_all.legend(loc="upper left", ncols=2, fontsize=11)
-    ax_zoom.legend(loc="upper left", ncols=3, fontsize=11)
+    ax_zoom.legend(loc="upper left", ncols=4, fontsize=11)
     stems = [_save(fig, out_dir, "integrators_energy")]
 
     fig, ax = _figure()
@@ -259,66 +342,100 @@ def _plot_orthonormality(data: dict, out_dir: Path) -> Path:
 
 def _plot_convergence(conv: dict, convergence_duration: float, out_dir: Path) -> Path:
     """Max orientation error against dt (log-log) per scheme of convergence_data, slopes in the legend."""
-    fig, ax = _figure()  # 16:9, like every slide of the demo
+    fig, ax = _figure()
     ax = ax[0, 0]
     for name in LECTURE_SCHEMES:
         c = conv[name]
-        slope = "-" if c["slope"] is None else f"{c['slope']:.2f}"
         ax.loglog(c["dt"], c["error"], marker="o", color=SCHEME_COLORS[name],
-                  linestyle=SCHEME_STYLES.get(name, "-"), label=f"{name}: slope {slope}")
+                  linestyle=SCHEME_STYLES.get(name, "-"), label=f"{name}: slope {_fmt_slope(c['slope'])}")
     ax.set(xlabel="dt (s)", ylabel="max orientation error (rad)",
-           title=f"Convergence over {convergence_duration:g} s")
-    ax.legend(loc="lower right")
+           title=f"Convergence over {convergence_duration:g} s: the slope is the observed order")
+    ax.legend(loc="lower right", fontsize=11)
     return _save(fig, out_dir, "integrators_convergence")
 
 
-def _integrators_page(dt: float, duration: float, steps: int, convergence_duration: float, rows: str,
-                      ortho: float, split_min: float, split_max: float) -> str:
-    """The Markdown of ``integrators.md``: ``rows`` is the table body, ``ortho`` the final
-    orthonormality error of euler-matrix, ``split_min``/``split_max`` the range of the symplectic
-    splitting's signed energy error."""
+def _local_slopes(c: dict) -> str:
+    return ", ".join(f"{s:.2f}" for s in c["local_slopes"])
+
+
+def _integrators_page(dt: float, duration: float, steps: int, convergence_duration: float, final: dict,
+                      conv: dict, ortho: float, gs_step: dict, contrast: dict) -> str:
+    """The Markdown of ``integrators.md``: ``final`` and ``conv`` as in demo_integrators' facts,
+    ``ortho`` the final orthonormality error of euler-matrix, ``gs_step`` from gram_schmidt_one_step,
+    ``contrast`` euler-matrix-gs's convergence_data on the GS_CONTRAST_INERTIA body."""
+    rows = "\n".join(f"| `{n}` | {INTEGRATORS[n].summary} | {final[n]['energy']:+.2e} | "
+                     f"{final[n]['orientation']:.2e} | {_fmt_slope(conv[n]['slope'])} |"
+                     for n in LECTURE_SCHEMES)
+    readings = "\n".join(
+        f"- `{n}` {_gains(final[n]['energy'])} {abs(final[n]['energy']):.2g} of its initial kinetic "
+        f"energy in {duration:g} s ({final[n]['energy']:+.2e}) and ends {final[n]['orientation']:.2g} rad "
+        f"from the true orientation; its error shrinks with dt at the fitted slope "
+        f"{_fmt_slope(conv[n]['slope'])} (formal order {INTEGRATORS[n].order})."
+        for n in LECTURE_SCHEMES)
+    split, mid = final["symplectic-splitting"], final["implicit-midpoint"]
+    em, eq, gs = final["euler-matrix"], final["euler-quat"], final["euler-matrix-gs"]
+    cg, cq = conv["euler-matrix-gs"], conv["euler-quat"]
+    dt0, e0 = cg["dt"][0], cg["error"][0]
+    a_gs = cg["error_per_dt"]
+    share = max(0.0, (e0 - a_gs * dt0) / e0)
+    cm = conv["euler-matrix"]
+    left_out = [f"{d:g} s ({e:.2g} rad)" for d, e, u in zip(cm["dt"], cm["error"], cm["fitted"]) if not u]
+    left_out_text = (f" `euler-matrix`'s error at dt = {', '.join(left_out)} is above the fit range "
+                     f"({tol.DEMO_SLOPE_FIT_RANGE_RAD[1]:g} rad) and left out of its fit." if left_out else "")
+    m, p = gs_step["measured"], gs_step["predicted"]
     return f"""
 # Integrators on a tumbling body
 
 The body of the bundled case `{INTEGRATORS_CASE}`: I = diag(1, 2, 3) kg m^2, no gravity, tumbling about
 its major axis; the truth is the closed-form torque-free motion. Every scheme runs {steps} steps of
 dt = {dt:g} s ({duration:g} s). Reproduce the numbers with
-`freebody run {INTEGRATORS_CASE} --engine reference --dt {dt:g} --duration {duration:g}`.
+`freebody run {INTEGRATORS_CASE} --engine reference --dt {dt:g} --duration {duration:g}`; the lesson
+`examples/01_integrators.ipynb` derives them step by step.
 
 | scheme | what it does | energy error (E - E0) / KE0 at {duration:g} s | orientation error at {duration:g} s (rad) | observed order |
 | --- | --- | --- | --- | --- |
 {rows}
+
+How to read a row:
+
+{readings}
 
 ## Energy error, signed
 
 ![energy](integrators_energy.png)
 
 The energy error with its sign, (E(t) - E(0)) / KE(0); the exact motion keeps it at 0 (the black
-line). Explicit Euler *gains* energy, step after step: on the matrix (`euler-matrix`) most, because
-each step moves R along the tangent, off the rotations, and the body's apparent inertia changes with
-it; Gram-Schmidt (`euler-matrix-gs`) removes that part, and what is left still drifts. `euler-quat` and
-`lie-euler` nearly coincide (drawn dashed over each other): without torque L never changes,
-so updating the momenta first changes nothing, and what is left is an explicit Euler step on the
-rotations (the Lie-Euler method), w taken at the old orientation. Momenta first is symplectic Euler
-for the translation only: it bounds the energy of a separable H = T(p) + V(x), but the rotational
-energy 1/2 L . R I_b^-1 R^T L depends on the orientation R as well as on L, and a symplectic Euler
-step would need w at the *new* R (an implicit step). (Before freebody 0.2.0 `lie-euler` was called
-`symplectic-euler`, a name that still works.)
+dashed line, drawn on top). Explicit Euler *gains* energy at every step, and for a good reason: with w
+frozen over the step the body turns along exp(s [w]) R, and along that path the energy
+E = 1/2 L . R I_b^-1 R^T L has zero slope but a positive curvature (w x L) . I(t)^-1 (w x L), so each
+step adds h^2/2 of it. On the matrix (`euler-matrix`) the gain is largest ({em['energy']:+.2f} after
+{duration:g} s), because each step also moves R off the rotations (the next section) and the body's
+apparent inertia changes with it. `euler-quat` and `lie-euler` nearly coincide ({eq['energy']:+.3f}, drawn
+dashed over each other): without torque L never changes, so updating the momenta first changes nothing,
+and what is left is an explicit Euler step on the rotations (the Lie-Euler method), w taken at the old
+orientation. Momenta first is symplectic Euler for the translation only: it bounds the energy of a
+separable H = T(p) + V(x), but the rotational energy depends on the orientation R as well as on L, and
+a symplectic Euler step would need w at the *new* R (an implicit step). (Before freebody 0.2.0
+`lie-euler` was called `symplectic-euler`, a name that still works.) Gram-Schmidt (`euler-matrix-gs`)
+ends at {gs['energy']:+.1e}: its projection turns R by a further h^2 term that cancels most of explicit
+Euler's on this body (see Convergence), and what is left is a small loss.
 
 `symplectic-splitting` is symplectic: it splits the rotational energy into parts whose motions are
 exact rotations (a sphere's about L, corrections about two principal axes) and composes them
 symmetrically (Dullweber, Leimkuhler & McLachlan 1997). It solves a slightly different rigid body
-exactly, so its energy error oscillates and stays bounded, between {split_min:+.1e} and
-{split_max:+.1e} here (lower panel), for as long as you run it; it does not drift. RK4 is more
-accurate at this step (its error is much smaller) but is not symplectic: over very long runs its
-error grows slowly, while the splitting's stays where it is.
+exactly, so its energy error oscillates and stays bounded, between {split['energy_min_signed']:+.1e} and
+{split['energy_max_signed']:+.1e} here (lower panel), for as long as you run it; it does not drift.
+`implicit-midpoint` keeps the energy to round-off (at most {mid['energy_max']:.1e} here): the midpoint
+rule conserves every quadratic invariant, and E is quadratic in the body momentum it integrates. RK4
+is more accurate than the splitting at this step ({final['rk4']['energy_max']:.1e} at most) but is not
+symplectic: over very long runs its error grows slowly, while the splitting's stays where it is.
 
 ## Orientation error
 
 ![orientation](integrators_orientation.png)
 
-All the first-order schemes drift away from the true orientation at a rate proportional to dt;
-RK4's error is proportional to dt^4.
+All the first-order schemes drift away from the true orientation at a rate proportional to dt (the
+table's last-but-one column gives where each ends); the second-order ones at dt^2, RK4 at dt^4.
 
 ## R without Gram-Schmidt
 
@@ -327,7 +444,7 @@ RK4's error is proportional to dt^4.
 Explicit Euler on the matrix, R <- R + h [w] R, multiplies the length of every column by about
 sqrt(1 + h^2 |w|^2) per step: R stops being a rotation (here ||R^T R - 1||_F = {ortho:.2g} after
 {duration:g} s) and the body appears to grow. Re-orthonormalising after each step (Gram-Schmidt) keeps
-it at round-off, but does not make the scheme more accurate.
+it at round-off.
 
 ## Convergence
 
@@ -335,8 +452,29 @@ it at round-off, but does not make the scheme more accurate.
 
 The maximum orientation error over {convergence_duration:g} s against dt, on a log-log scale. The slope is
 the observed order: about 1 for the Euler family (halve dt, halve the error), about 2 for the
-symplectic splitting (error / 4) and about 4 for RK4 (halve dt, error / 16). The horizon is short so that explicit Euler has not saturated (errors above
-about 1 rad no longer shrink with dt, and the fitted slope would be meaningless).
+symplectic splitting and the implicit midpoint (error / 4) and about 4 for RK4 (halve dt, error / 16).
+The horizon is short so that explicit Euler has not saturated (errors above about 1 rad no longer
+shrink with dt, and the fitted slope would be meaningless).{left_out_text} A fitted slope averages the
+local slopes between neighbouring steps, which settle at the order as dt shrinks: `euler-quat`'s are
+{_local_slopes(cq)} from the coarsest pair to the finest.
+
+**Why `euler-matrix-gs` fits {_fmt_slope(cg['slope'])} and not 1.** It is first order, but its first-order
+error happens to be small on this body, so its dt^2 error still shows at the coarse steps. Its local
+slopes fall {_local_slopes(cg)} towards 1. Its error per unit dt at the finest step is {a_gs:.3f} rad/s,
+{cq['error_per_dt'] / a_gs:.0f} times smaller than `euler-quat`'s ({cq['error_per_dt']:.2f} rad/s), so at
+dt = {dt0:g} s about {share:.0%} of its error ({e0:.2g} rad) is the dt^2 part, and a straight line through
+all the points averages slopes between 2 and 1. Why the first-order part is small: Gram-Schmidt is not
+the exponential map. After R + h [w] R it turns R by a further -h^2 k, with
+k_b = (w_y w_z, -w_x w_z, w_x w_y) / 2 in the body frame (from the Cholesky factor of
+R^T R = 1 + h^2 (|w|^2 - w_b w_b^T)), while explicit Euler's own one-step error is the h^2/2 dw/dt it
+misses by freezing w. For I = diag(1, 2, 3), where I1 + I2 = I3 (a flat plate's inertia), Euler's
+equations give dw_b/dt = (-w_y w_z, w_x w_z, -w_x w_y / 3): the x and y parts of the two errors cancel
+exactly and only h^2 |w_x w_y| / 3 is left. Measured over one step of h = {gs_step['h']:g} s from the initial
+state, the orientation error is {m['euler-matrix-gs']:.3f} h^2 rad with Gram-Schmidt against
+{m['lie-euler']:.3f} h^2 for `lie-euler` (predicted {p['euler-matrix-gs']:.3f} and {p['lie-euler']:.3f}). On
+a body without that coincidence, I = diag{tuple(GS_CONTRAST_INERTIA)} with the same initial state, the same
+fit gives {_fmt_slope(contrast['slope'])} and an error per unit dt of {contrast['error_per_dt']:.2f} rad/s: a
+lucky cancellation of this body and of Gram-Schmidt's column order, not a better method.
 """
 
 
@@ -392,10 +530,22 @@ def _angle_z(q: np.ndarray) -> float:
     return float(2.0 * np.arctan2(q[3], q[0]))
 
 
+def quiz_family(x2_x: float, h: float, cf: dict) -> str:
+    """The map an engine's quiz answer shows, from the COM's x at t2 in units of h^2 F_x / m:
+    1 explicit Euler, 2 semi-implicit Euler, 1.5 a force held over the step integrated exactly
+    (RK4 and higher), anything else "other" (within QUIZ_FAMILY_ATOL of those units)."""
+    u = x2_x / (h * h * cf["F"][0] / cf["m"])
+    for family, value in (("explicit", 1.0), ("semi-implicit", 2.0), ("rk4", 1.5)):
+        if abs(u - value) < QUIZ_FAMILY_ATOL:
+            return family
+    return "other"
+
+
 def quiz_rows(problem: Problem, h: float, engines: list[str] | None, log=None) -> list[QuizRow]:
     """The quiz at t2 for the closed form, the reference schemes, every installed engine's
-    integrators (missing or failing engines as rows with their status), and the truth."""
-    from ..run import RunSpec, execute, engine_integrators, select_engines
+    integrators at the engine's first precision (missing or failing engines as rows with their
+    status; each engine row's family from its answer, :func:`quiz_family`), and the truth."""
+    from ..run import RunSpec, engine_integrators, execute, select_engines
 
     cf = quiz_closed_form(problem, h)
     m = cf["m"]
@@ -416,25 +566,28 @@ def quiz_rows(problem: Problem, h: float, engines: list[str] | None, log=None) -
             r = execute(spec, identify_scheme=False).result
             rows.append(QuizRow(f"{engine}", "missing", None, None, None, None, f"{r.status}: {r.message}"))
             continue
+        precision = _engine_precision(engine)
         for integ in offered:
             if log:
                 log(f"quiz: {engine}/{integ}")
-            out = execute(RunSpec(problem, engine, integ, h, 2), identify_scheme=False)
+            out = execute(RunSpec(problem, engine, integ, h, 2, precision), identify_scheme=False)
             tr = out.trajectory
-            family = "rk4" if "rk4" in integ.lower() else "semi-implicit"
+            label = f"{engine} {integ}" + ("" if precision == "float64" else f" ({precision})")
             if tr is None or len(tr) < 3:
-                rows.append(QuizRow(f"{engine} {integ}", family, None, None, None, None,
+                rows.append(QuizRow(label, "missing", None, None, None, None,
                                     f"{out.result.status}: {out.result.message}"))
                 continue
-            rows.append(QuizRow(f"{engine} {integ}", family, tr.position[2], _angle_z(tr.quaternion_wxyz[2]),
-                                tr.linear_velocity[2], tr.angular_velocity[2]))
+            rows.append(QuizRow(label, quiz_family(tr.position[2][0], h, cf), tr.position[2],
+                                _angle_z(tr.quaternion_wxyz[2]), tr.linear_velocity[2], tr.angular_velocity[2]))
     truth = truth_trajectory(problem, h, 2)
     rows.append(QuizRow("truth (DOP853)", "truth", truth.position[2], _angle_z(truth.quaternion_wxyz[2]),
                         truth.linear_velocity[2], truth.angular_velocity[2]))
     return rows
 
 
-FAMILY_COLORS = {"explicit": "#d62728", "semi-implicit": "#1f77b4", "rk4": "#2ca02c", "truth": "#000000"}
+# the truth row's bar is light grey so that the truth's dashed black line shows on top of it
+FAMILY_COLORS = {"explicit": "#d62728", "semi-implicit": "#1f77b4", "rk4": "#2ca02c", "other": "#9467bd",
+                 "truth": "#bbbbbb"}
 
 
 def demo_quiz(out_dir: Path, engines: list[str] | None = None, h: float = QUIZ_DT, log=None) -> DemoOutput:
@@ -455,8 +608,26 @@ def demo_quiz(out_dir: Path, engines: list[str] | None = None, h: float = QUIZ_D
                  "rows": [{"label": r.label, "family": r.family, "status": r.status,
                            "x2": None if r.x2 is None else r.x2.tolist(), "angle2": r.angle2} for r in rows],
                  "x_over_h2F": x_ratio}
-    _write_page(res.page, _quiz_page(cf, h, table))
+    _write_page(res.page, _quiz_page(cf, h, table, _quiz_readings(rows, h, cf)))
     return res
+
+
+def _quiz_readings(rows: list[QuizRow], h: float, cf: dict) -> str:
+    """One sentence per row of the quiz table: its numbers, and its x and angle against the truth's
+    (the last row) in units of h^2 F_x / m and h^2."""
+    truth = rows[-1]
+    unit_x = h * h * cf["F"][0] / cf["m"]
+    out = []
+    for r in rows:
+        if r.status != "ok":
+            out.append(f"- **{r.label}** has no numbers: {r.status}.")
+            continue
+        out.append(
+            f"- **{r.label}** puts the COM at x2 = {_vec(r.x2)} m (x = {r.x2[0] / unit_x:.3g} h^2 F_x/m, the "
+            f"truth's {truth.x2[0] / unit_x:.3g}; z = {r.x2[2] / (h * h * cf['g'][2]):.3g} h^2 g_z) and turns "
+            f"the body by {np.degrees(r.angle2):.4g} deg about z ({r.angle2 / h ** 2:.3g} h^2 rad); it moves on "
+            f"at v2 = {_vec(r.v2)} m/s and turns at w2 = {_vec(r.w2)} rad/s.")
+    return "\n".join(out)
 
 
 def _vec(a) -> str:
@@ -465,34 +636,40 @@ def _vec(a) -> str:
 
 
 def _plot_quiz(drawn: list[QuizRow], truth: QuizRow, h: float, out_dir: Path) -> Path:
-    """Bars of x2 and of the rotation angle at t2 per drawn row, coloured by family, the truth
-    dashed."""
-    fig, axes = _figure(1, 2, size=(14, 7.5), sharey=True)
+    """Bars of x2 and of the rotation angle at t2 per drawn row, coloured by family, the truth's
+    values as dashed lines on top."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    fig, axes = _figure(1, 2, sharey=True)
     labels = [r.label for r in drawn][::-1]
     ypos = np.arange(len(labels))
     for ax, values, exact, xlabel in (
             (axes[0, 0], [r.x2[0] * 100 for r in drawn][::-1], truth.x2[0] * 100, "x2, x component (cm)"),
             (axes[0, 1], [np.degrees(r.angle2) for r in drawn][::-1], np.degrees(truth.angle2),
              "rotation about z at t2 (deg)")):
+        ax.axvline(exact, gid=TRUTH_GID, **TRUTH_STYLE)
         colors = [FAMILY_COLORS[r.family] for r in drawn][::-1]
         ax.barh(ypos, values, color=colors)
-        ax.axvline(exact, color="black", linestyle="--", linewidth=1.5)
         ax.set_xlabel(xlabel)
         ax.grid(axis="y", visible=False)
     axes[0, 0].set_yticks(ypos, labels)
-    from matplotlib.patches import Patch
-
-    present = dict.fromkeys(r.family for r in drawn)
-    names = {"explicit": "explicit Euler", "semi-implicit": "semi-implicit Euler (engines' map)", "rk4": "RK4",
-             "truth": "truth"}
-    fig.legend(handles=[Patch(color=FAMILY_COLORS[f], label=names[f]) for f in present],
-               loc="outside lower center", ncols=len(present))
+    # every engine's every integrator: smaller labels when there are many rows (about 560 px of them)
+    axes[0, 0].tick_params(axis="y", labelsize=max(7.0, min(14.0, 28.0 * 14 / max(len(labels), 1) / 2)))
+    present = [f for f in dict.fromkeys(r.family for r in drawn) if f != "truth"]
+    names = {"explicit": "explicit Euler", "semi-implicit": "semi-implicit Euler (engines' map)",
+             "rk4": "RK4 (force integrated exactly)", "other": "another map"}
+    handles = [Line2D([], [], label="truth (exact motion)", **TRUTH_STYLE)]
+    handles += [Patch(color=FAMILY_COLORS[f], label=names[f]) for f in present]
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles) if len(handles) <= 4 else 3,
+               fontsize=12)
     fig.suptitle(f"The push quiz after two steps of h = {h:g} s (dashed: the exact motion)")
     return _save(fig, out_dir, "quiz_t2")
 
 
-def _quiz_page(cf: dict, h: float, table: str) -> str:
-    """The Markdown of ``quiz.md``: ``cf`` from quiz_closed_form, ``table`` the table body."""
+def _quiz_page(cf: dict, h: float, table: str, readings: str) -> str:
+    """The Markdown of ``quiz.md``: ``cf`` from quiz_closed_form, ``table`` the table body,
+    ``readings`` a sentence per row (_quiz_readings)."""
     F, tau, g, m = cf["F"], cf["tau"], cf["g"], cf["m"]
     return f"""
 # The push quiz, worked out
@@ -510,8 +687,10 @@ Explicit Euler on (x, R, P, L) updates every variable with the derivative at the
 - step 2 (t1 -> t2, push off): x2 = x1 + h P1/m, R2 = R1 + h [w1] R1 with w1 = I^-1 L1.
 
 So **x2 = h^2 (F/m + g)** = {_vec(cf['x2'])} m, **R2 = 1 + h [w1]** with **w1 = (0, 0, -5h)** =
-{_vec(cf['w1'])} rad/s, **P2 = hF + 2hmg** = {_vec(cf['P2'])} kg m/s, **L2 = (0, 0, -2h)** = {_vec(cf['L2'])} kg m^2/s.
-R2 is not a rotation: det R2 = 1 + 25 h^4 = {np.linalg.det(cf['R2']):.6g}.
+{_vec(cf['w1'])} rad/s (-5 = tau_z / I = -2 / 0.4), **P2 = hF + 2hmg** = {_vec(cf['P2'])} kg m/s (gravity acts
+on both steps, the push on one), **L2 = (0, 0, -2h)** = {_vec(cf['L2'])} kg m^2/s (the torque on step 1 only).
+R2 is not a rotation: its columns are longer than 1, and det R2 = 1 + h^2 |w1|^2 = 1 + 25 h^4 =
+{np.linalg.det(cf['R2']):.6g}.
 
 ## Every scheme at t2
 
@@ -520,6 +699,13 @@ R2 is not a rotation: det R2 = 1 + 25 h^4 = {np.linalg.det(cf['R2']):.6g}.
 | scheme | x2 (m) | angle about z (deg) | v2 (m/s) | w2 (rad/s) |
 | --- | --- | --- | --- | --- |
 {table}
+
+The bars of the figure are coloured by the map each answer shows: x2 = 1, 2 or 1.5 h^2 F_x/m is explicit
+Euler, semi-implicit Euler or a force integrated exactly over the step (as RK4 does); any other value
+is "another map". Row by row, with x in units of h^2 F_x/m = {h * h * F[0] / m:.4g} m, z in units of h^2 g_z = {h * h * g[2]:.4g} m
+and the angle in units of h^2 rad:
+
+{readings}
 
 ## Why they differ
 
@@ -537,8 +723,12 @@ R2 is not a rotation: det R2 = 1 + 25 h^4 = {np.linalg.det(cf['R2']):.6g}.
   `rk4` evaluates the arm at each stage and follows the truth; MuJoCo's `RK4` holds the wrench of
   the step's start.
 
-The exact answer lies between the two first-order schemes; the gap shrinks like h (try
-`freebody run quiz --dt 0.01`), and the three engines' agreement with each other says which scheme they
+The exact answer lies halfway between the two first-order schemes (1.5 between 1 and 2 in x, 2 between 1
+and 3 in z, -7.5 between -5 and -10 h^2 in the angle): under a constant acceleration a, explicit Euler
+lags by h a t / 2 and semi-implicit Euler leads by as much. In the quiz the push lasts one step whatever
+h is, so the answers keep these ratios at every h (`freebody run quiz --dt 0.01` shows the same
+1 : 1.5 : 2); the same push resolved by more steps brings the gap down like h (the lesson
+`examples/02_quiz.ipynb` shows it). The engines' agreement with each other says which scheme they
 implement, not that they are exact.
 """
 
@@ -555,19 +745,31 @@ def dzhanibekov_runs(problem: Problem, dt: float, steps: int, engines: list[str]
     for engine in select_engines(engines):
         offered = engine_integrators(engine)
         chosen = REFERENCE_IN_DZHANIBEKOV if engine == REFERENCE_ENGINE else (offered or ("*",))
+        precision = _engine_precision(engine)
         for integ in chosen:
             if log:
                 log(f"dzhanibekov: {engine}/{integ}")
-            r = execute(RunSpec(problem, engine, integ, dt, steps), cache, identify_scheme=False)
+            r = execute(RunSpec(problem, engine, integ, dt, steps, precision), cache, identify_scheme=False)
             ok = r.trajectory is not None and r.result.status == Status.OK
-            out.append((f"{engine}/{integ}" if integ != "*" else engine, r.trajectory if ok else None,
+            label = (f"{engine}/{integ}" if integ != "*" else engine) + (
+                "" if precision == "float64" else f" ({precision})")
+            out.append((label, r.trajectory if ok else None,
                         Status.OK.value if ok else f"{r.result.status}: {r.result.message}"))
     return out
 
 
+def _engine_precision(engine: str) -> str:
+    """float64 when the engine offers it, else its first precision (float32 engines)."""
+    from ..run import engine_precisions
+
+    offered = engine_precisions(engine) or ("float64",)
+    return "float64" if "float64" in offered else offered[0]
+
+
 def demo_dzhanibekov(out_dir: Path, engines: list[str] | None = None, dt: float = DZHANIBEKOV_DT,
                      duration: float = DZHANIBEKOV_DURATION, frames: int = GIF_FRAMES, log=None) -> DemoOutput:
-    """Angular velocity (body and world) and energy error per engine, a GIF, ``dzhanibekov.md``."""
+    """Angular velocity (body and world) and signed energy error per engine, each run's flip times
+    against the truth's, a GIF, ``dzhanibekov.md``."""
     problem = _with(load_case(DZHANIBEKOV_CASE), duration, dt)
     steps = int(round(duration / dt))
     truth = truth_trajectory(problem, dt, steps)
@@ -577,32 +779,103 @@ def demo_dzhanibekov(out_dir: Path, engines: list[str] | None = None, dt: float 
     with _rc():
         res.figures.append(_plot_dzhanibekov(problem, truth, wb_true, runs, out_dir))
         gif = out_dir / "dzhanibekov.gif"
-        _animate_box(truth, gif, frames)
+        animate_box(problem, truth, gif, frames)
         res.files.append(gif)
 
     flips = _flip_times(truth.t, wb_true[:, 1])
-    res.facts = {"flip_times_s": flips, "runs": [{"label": lab, "status": st} for lab, _, st in runs]}
+    s_truth = separatrix_distance(problem, truth)
+    stats = []
+    for lab, tr, st in runs:
+        if tr is None:
+            continue
+        e = _signed_energy_error(problem, tr)
+        wb = angular_velocity_body_from_world(tr.quaternion_wxyz, tr.angular_velocity)
+        stats.append({"label": lab, "energy_extreme": float(e[np.nanargmax(np.abs(e))]),
+                      "orientation_max": float(np.max(geodesic_angle(truth.quaternion_wxyz, tr.quaternion_wxyz))),
+                      "flips": _flip_times(tr.t, wb[:, 1]),
+                      "separatrix_end": float(separatrix_distance(problem, tr)[-1])})
+    for st in stats:
+        st["flips_on_time"] = _flips_on_time(st["flips"], flips)
+    res.facts = {"flip_times_s": flips, "runs": [{"label": lab, "status": st} for lab, _, st in runs],
+                 "run_stats": stats, "separatrix_truth": float(s_truth[0])}
     missing = "\n".join(f"- {lab}: {st}" for lab, tr, st in runs if tr is None) or "- none"
-    finals = "\n".join(
-        f"| {lab} | {np.nanmax(_rel_energy_error(problem, tr)):.2e} | "
-        f"{np.max(geodesic_angle(truth.quaternion_wxyz, tr.quaternion_wxyz)):.3g} |"
-        for lab, tr, _ in runs if tr is not None)
-    _write_page(res.page, _dzhanibekov_page(dt, duration, flips, finals, missing))
+    finals = "\n".join(f"| {st['label']} | {st['energy_extreme']:+.2e} | {st['orientation_max']:.3g} | "
+                       f"{st['separatrix_end']:+.1e} | {_times(st['flips'])} |" for st in stats)
+    readings = "\n".join(_dzhanibekov_reading(st, flips, duration, float(s_truth[0])) for st in stats)
+    _write_page(res.page, _dzhanibekov_page(dt, duration, flips, float(s_truth[0]), finals, readings, missing,
+                                            frames))
     return res
+
+
+def separatrix_distance(problem: Problem, tr: Trajectory) -> np.ndarray:
+    """s = 2 E I2 / |L|^2 - 1, shape (N,): how far the motion is from the separatrix, the motion
+    that approaches the intermediate axis forever (I2 the intermediate principal moment; E and |L|
+    of the trajectory's own samples).  s > 0: the body's axis circulates about the minor axis,
+    s < 0: about the major axis; the time between flips grows like log(1 / |s|)."""
+    I_b = problem.body.I_body
+    wb = angular_velocity_body_from_world(tr.quaternion_wxyz, tr.angular_velocity)
+    m = wb @ I_b.T  # body-frame angular momentum, kg m^2/s
+    two_E = np.einsum("ni,ni->n", wb, m)
+    I2 = np.linalg.eigvalsh(I_b)[1]
+    return two_E * I2 / np.einsum("ni,ni->n", m, m) - 1.0
+
+
+def _times(ts: list[float]) -> str:
+    return ", ".join(f"{t:.2f}" for t in ts) or "none"
+
+
+def _hold(flips: list[float]) -> str:
+    """The truth's time between its first two flips, as words."""
+    return f"{flips[1] - flips[0]:.2f} s between its flips" if len(flips) > 1 else "longer than this run"
+
+
+def _flips_on_time(flips: list[float], truth_flips: list[float]) -> int:
+    """How many of a run's flips, from the first on, come within FLIP_ON_TIME_S of the truth's."""
+    n = 0
+    for a, b in zip(flips, truth_flips):
+        if abs(a - b) > FLIP_ON_TIME_S:
+            break
+        n += 1
+    return n
+
+
+def _dzhanibekov_reading(st: dict, truth_flips: list[float], duration: float, s_truth: float) -> str:
+    """One sentence for a row of the Dzhanibekov table (``st`` a run_stats entry)."""
+    e, o, f, k = st["energy_extreme"], st["orientation_max"], st["flips"], st["flips_on_time"]
+    upside = " (near pi rad: at times upside down against the truth)" if o > 3.0 else ""
+    if not f:
+        verdict = "it never flips: it misses the flip"
+    elif k == len(f) == len(truth_flips):
+        verdict = f"all on time (within {FLIP_ON_TIME_S:g} s of the truth's)"
+    else:
+        head = "none on time" if k == 0 else ("the first on time" if k == 1 else f"the first {k} on time")
+        if k < len(f) and k < len(truth_flips):
+            miss = f"flip {k + 1} comes {f[k] - truth_flips[k]:+.2f} s off the truth's {truth_flips[k]:.2f} s"
+        elif k < len(truth_flips):
+            miss = f"it misses the truth's flip at {truth_flips[k]:.2f} s"
+        else:
+            miss = f"then {len(f) - k} that the truth does not make"
+        verdict = f"{head}; {miss}" + (f" ({len(f)} flips, the truth {len(truth_flips)})"
+                                       if len(f) != len(truth_flips) else "")
+    return (f"- `{st['label']}` {_gains(e)} up to {abs(e):.2g} of its energy ({e:+.2e}), strays at most "
+            f"{o:.3g} rad from the true orientation{upside}, ends at s = {st['separatrix_end']:+.1e} from the "
+            f"separatrix (the truth stays at {s_truth:+.1e}) and flips {len(f)} times in {duration:g} s"
+            f"{f', at {_times(f)} s' if f else ''}: {verdict}.")
 
 
 def _plot_dzhanibekov(problem: Problem, truth: Trajectory, wb_true: np.ndarray, runs: list,
                       out_dir: Path) -> Path:
-    """Three panels against t: body-frame w_y, world-frame w_x and the energy error, for the truth
-    (``wb_true``: its body-frame angular velocity (N, 3)) and every run of dzhanibekov_runs that
-    has a trajectory."""
-    styles = ["-", "--", "-.", ":"]
-    fig, axes = _figure(3, 1, size=(12, 11), sharex=True)
-    ax_b, ax_w, ax_e = axes[:, 0]
-    ax_b.plot(truth.t, wb_true[:, 1], color="black", linewidth=4, alpha=0.35, label="truth")
-    ax_w.plot(truth.t, truth.angular_velocity[:, 0], color="black", linewidth=4, alpha=0.35)
+    """Three panels against t: body-frame w_y, world-frame w_x and the signed energy error, for the
+    truth (``wb_true``: its body-frame angular velocity (N, 3)), on top, and every run of
+    dzhanibekov_runs that has a trajectory."""
     import matplotlib
 
+    styles = ["-", "--", "-.", ":"]
+    fig, axes = _figure(3, 1, sharex=True)
+    ax_b, ax_w, ax_e = axes[:, 0]
+    _truth_line(ax_b, truth.t, wb_true[:, 1])
+    _truth_line(ax_w, truth.t, truth.angular_velocity[:, 0])
+    _truth_hline(ax_e, 0.0)
     cmap = matplotlib.colormaps["tab10"]
     drawn = [(lab, tr) for lab, tr, _ in runs if tr is not None]
     for k, (label, tr) in enumerate(drawn):
@@ -610,42 +883,65 @@ def _plot_dzhanibekov(problem: Problem, truth: Trajectory, wb_true: np.ndarray, 
         wb = angular_velocity_body_from_world(tr.quaternion_wxyz, tr.angular_velocity)
         ax_b.plot(tr.t, wb[:, 1], color=color, linestyle=ls, label=label)
         ax_w.plot(tr.t, tr.angular_velocity[:, 0], color=color, linestyle=ls)
-        ax_e.semilogy(tr.t, np.maximum(_rel_energy_error(problem, tr), 1e-17), color=color, linestyle=ls)
-    ax_b.set(ylabel=r"$\omega_{body,y}$ (rad/s)", title="The intermediate axis flips (Dzhanibekov effect)")
-    ax_w.set(ylabel=r"$\omega_{world,x}$ (rad/s)")
-    ax_e.set(xlabel="t (s)", ylabel="|E - E0| / E0")
-    ax_b.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=11)
+        ax_e.plot(tr.t, _signed_energy_error(problem, tr), color=color, linestyle=ls)
+    # signed, over ten decades: linear within +-1e-10 (round-off), logarithmic beyond
+    ax_e.set_yscale("symlog", linthresh=1e-10)
+    ax_e.yaxis.set_major_locator(matplotlib.ticker.FixedLocator([-1e-1, -1e-6, 0.0, 1e-6, 1e-1]))
+    ax_b.set(ylabel=r"$\omega_{body,y}$" "\n(rad/s)", title="The intermediate axis flips (Dzhanibekov effect)")
+    ax_w.set(ylabel=r"$\omega_{world,x}$" "\n(rad/s)")
+    ax_e.set(xlabel="t (s)", ylabel="(E - E0) / E0\n(symlog)")
+    # the truth and every run beside the panels: one column of up to 14 entries, then more, smaller
+    n = len(drawn) + 1
+    fig.legend(handles=ax_b.get_lines(), loc="outside right upper", ncols=int(np.ceil(n / 20)) if n > 14 else 1,
+               fontsize=11 if n <= 14 else 8)
     return _save(fig, out_dir, "dzhanibekov_flip")
 
 
-def _dzhanibekov_page(dt: float, duration: float, flips: list[float], finals: str, missing: str) -> str:
-    """The Markdown of ``dzhanibekov.md``: ``finals`` the table body, ``missing`` the list of runs
-    not drawn."""
+def _dzhanibekov_page(dt: float, duration: float, flips: list[float], s_truth: float, finals: str,
+                      readings: str, missing: str, frames: int) -> str:
+    """The Markdown of ``dzhanibekov.md``: ``finals`` the table body, ``readings`` a sentence per
+    row, ``missing`` the list of runs not drawn, ``frames`` the GIF's."""
+    gif_w, gif_h = (round(v * GIF_DPI) for v in GIF_SIZE_IN)
     return f"""
 # The Dzhanibekov effect in every engine
 
 The bundled case `dzhanibekov`: I = diag(1, 2, 3) kg m^2, spinning at 5 rad/s about the intermediate
 axis (body y) with a 0.01 rad/s nudge about x; no gravity, no torque. Rotation about the intermediate
-axis is unstable: the body flips over every few seconds (here at t = {', '.join(f'{t:.2f}' for t in flips)} s)
-while L stays fixed in the world. dt = {dt:g} s, {duration:g} s.
+axis is unstable: the nudge grows until the body flips over, holds, and flips back, while L stays
+fixed in the world. The exact motion flips {len(flips)} times in {duration:g} s, at
+t = {_times(flips)} s (the times at which the body-frame w_y changes sign). Every run takes steps of
+dt = {dt:g} s for {duration:g} s. The lesson `examples/03_dzhanibekov.ipynb` follows the flip time
+against dt for every reference integrator.
 
 ![flip](dzhanibekov_flip.png)
 
-- **Top**: the angular velocity about the body's y axis: it reverses at each flip.
+- **Top**: the angular velocity about the body's y axis: it reverses at each flip. The truth is the
+  black dashed line on top; a run that follows it shows through the gaps.
 - **Middle**: the world-frame x component, zero at the start: it bursts during each flip, because
   w = I(t)^-1 L changes as the body turns even though L does not.
-- **Bottom**: the energy error. The engines' first-order semi-implicit maps gain or lose about 10%,
-  most of it on the way into the first flip, where every error is amplified; explicit Euler
-  (`reference/euler-quat`) gains more and soon flips at the wrong times; the symplectic splitting
-  (`reference/symplectic-splitting`, second order) keeps it bounded, oscillating below about 3e-5
-  with no drift; RK4 (freebody's and MuJoCo's) stays below 1e-7.
+- **Bottom**: the energy error with its sign, (E - E0) / E0, on a scale that is logarithmic on both
+  sides of a linear band of +-1e-10 (round-off) around 0: above the band a run has gained energy,
+  below it lost some.
 
-Engines that implement the same map draw on top of one another (dashed and dotted lines over solid);
-the small phase error of the first-order schemes makes them flip a little early or late.
-
-| engine/integrator | energy error max | orientation error max (rad) |
-| --- | --- | --- |
+| engine/integrator | energy error, extreme (E - E0) / E0 | orientation error max (rad) | separatrix distance s at the end | flips at (s) |
+| --- | --- | --- | --- | --- |
 {finals}
+
+Row by row:
+
+{readings}
+
+Why some runs flip on time and others do not: the time between flips is set by how close the motion
+is to the separatrix, the motion that would creep towards the intermediate axis forever. Its distance
+is s = 2 E I2 / |L|^2 - 1 with I2 = 2 kg m^2: 0 on the separatrix; positive, the body's axis
+circulates about the minor axis; negative, about the major one. The 0.01 rad/s nudge puts the truth at
+s = {s_truth:+.1e}, so it holds each orientation for {_hold(flips)}. The time between flips grows only
+like log(1 / |s|): a run flips on time while its s stays tiny, whatever its energy error. Explicit
+Euler keeps L exactly but gains energy at every step, so its s grows far from 0, the holding phase
+vanishes and the body tumbles, flipping again and again; a map that changes E and |L|^2 in proportion
+(freebody's semi-implicit maps nearly do: lesson 03 measures it) keeps s small and flips on time
+despite its energy error. Engines that implement the same map draw on top of one another (dashed and dotted
+lines over solid).
 
 Not drawn:
 {missing}
@@ -654,16 +950,19 @@ Not drawn:
 
 ![tumbling box](dzhanibekov.gif)
 
-The exact motion; the box has the case's inertia (edges in proportion sqrt(2) : 1 : 0.1); the arrow
-is the body's intermediate (y) axis.
+The exact motion in {frames} frames at {GIF_FPS} frames per second ({gif_w} x {gif_h} px): the box has the case's
+inertia (edges in proportion sqrt(2) : 1 : 0.1), the black arrow is its intermediate (y) axis, the grey
+arrow the angular momentum L, fixed in the world; on the right, w_y in the body frame with the frame's
+time marked.
 """
 
 
 def _flip_times(t: np.ndarray, wy: np.ndarray) -> list[float]:
-    """Times (s) at which the body-frame intermediate-axis rate changes sign."""
+    """Times (s) at which the body-frame intermediate-axis rate changes sign, interpolated linearly
+    between the samples around each change."""
     s = np.sign(wy)
     idx = np.flatnonzero(s[1:] * s[:-1] < 0)
-    return [float(t[i]) for i in idx]
+    return [float(t[i] - wy[i] * (t[i + 1] - t[i]) / (wy[i + 1] - wy[i])) for i in idx]
 
 
 def _box_faces(size) -> np.ndarray:
@@ -674,19 +973,37 @@ def _box_faces(size) -> np.ndarray:
     return np.array([[v[i] for i in f] for f in idx])
 
 
-def _animate_box(truth: Trajectory, path: Path, frames: int) -> None:
-    """A GIF of the box tumbling along ``truth`` (``frames`` frames at GIF_FPS), via PillowWriter."""
+def animate_box(problem: Problem, truth: Trajectory, path: Path, frames: int = GIF_FRAMES) -> None:
+    """A 16:9 GIF (GIF_SIZE_IN at GIF_DPI) of the box tumbling along ``truth`` beside its body-frame
+    w_y against t, ``frames`` frames at GIF_FPS, via PillowWriter."""
+    with _rc():  # slide fonts, also when called on its own (the lesson notebook does)
+        _draw_box_gif(problem, truth, path, frames)
+
+
+def _draw_box_gif(problem: Problem, truth: Trajectory, path: Path, frames: int) -> None:
     from matplotlib.animation import PillowWriter
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    fig, _ = _figure(size=(4.5, 4.5))
-    fig.clear()
-    ax = fig.add_subplot(projection="3d")
+    fig = Figure(figsize=GIF_SIZE_IN)
+    FigureCanvasAgg(fig)
+    grid = fig.add_gridspec(1, 2, width_ratios=(1.0, 1.15), left=0.0, right=0.97, bottom=0.14, top=0.9,
+                            wspace=0.15)
+    ax = fig.add_subplot(grid[0, 0], projection="3d")
+    ax_w = fig.add_subplot(grid[0, 1])
+    wb = angular_velocity_body_from_world(truth.quaternion_wxyz, truth.angular_velocity)
+    ax_w.plot(truth.t, wb[:, 1], color="black", linewidth=2.0)
+    (dot,) = ax_w.plot([], [], "o", color="#d62728", markersize=10)
+    cursor = ax_w.axvline(0.0, color="#d62728", linewidth=1.2)
+    ax_w.set(xlabel="t (s)", ylabel=r"$\omega_{body,y}$ (rad/s)", title="body-frame rate about y")
+    L = problem.R0 @ problem.body.I_body @ problem.R0.T @ np.asarray(problem.initial.angular_velocity, float)
+    L_dir = L / np.linalg.norm(L)
     faces = _box_faces((np.sqrt(2.0), 1.0, 0.1))
     colors = ["#d62728", "#d62728", "#1f77b4", "#1f77b4", "#2ca02c", "#2ca02c"]
     idx = np.linspace(0, len(truth) - 1, max(frames, 1)).round().astype(int)
     writer = PillowWriter(fps=GIF_FPS)
-    with writer.saving(fig, str(path), dpi=72):
+    with writer.saving(fig, str(path), dpi=GIF_DPI):
         for k in idx:
             ax.cla()
             R = matrix_from_quat(truth.quaternion_wxyz[k])
@@ -694,12 +1011,17 @@ def _animate_box(truth: Trajectory, path: Path, frames: int) -> None:
             ax.add_collection3d(poly)
             y_axis = R[:, 1]
             ax.quiver(0, 0, 0, *(1.1 * y_axis), color="black", linewidth=2.5)
-            ax.text(*(1.2 * y_axis), "y", fontsize=12)
+            ax.text(*(1.2 * y_axis), "y", fontsize=14)
+            # longer than the box so that its tip shows when the body's y axis points against it
+            ax.quiver(0, 0, 0, *(1.35 * L_dir), color="0.55", linewidth=2.0)
+            ax.text(*(1.45 * L_dir), "L", fontsize=14, color="0.4")
             for setter in (ax.set_xlim, ax.set_ylim, ax.set_zlim):
-                setter(-0.9, 0.9)
-            ax.set_box_aspect((1, 1, 1))
+                setter(-0.8, 0.8)
+            ax.set_box_aspect((1, 1, 1), zoom=1.35)
             ax.set_axis_off()
-            ax.set_title(f"t = {truth.t[k]:5.2f} s", fontsize=12)
+            ax.set_title(f"t = {truth.t[k]:5.2f} s", fontsize=16)
+            dot.set_data([truth.t[k]], [wb[k, 1]])
+            cursor.set_xdata([truth.t[k], truth.t[k]])
             writer.grab_frame()
 
 
