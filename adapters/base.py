@@ -343,6 +343,11 @@ ENGINES: dict[str, EngineEntry] = {
                          "pip install 'freebody[drake]'", package="drake"),
     "sapien": EngineEntry("sapien", "freebody.adapters.sapien_adapter", "SapienAdapter",
                           "pip install 'freebody[sapien]'"),
+    # opt-in (default=False): first compiles of 25-60 s per solver (warp) / seconds per run (JAX)
+    "newton": EngineEntry("newton", "freebody.adapters.newton_adapter", "NewtonAdapter",
+                          "pip install 'freebody[newton]'", default=False),
+    "brax": EngineEntry("brax", "freebody.adapters.brax_adapter", "BraxAdapter",
+                        "pip install 'freebody[brax]'", default=False),
 }
 
 # The engine whose runs are freebody's own reference maps: shared with scheme identification (so

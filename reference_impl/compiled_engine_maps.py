@@ -461,6 +461,192 @@ def drake_tableau_arrays(name: str) -> tuple[np.ndarray, np.ndarray]:
     return A, np.array(b, dtype=float)
 
 
+# --- Newton 1.8 (Warp): SolverSteel, SolverVBD, SolverKamino --------------------------------------
+# (imported here, beside the only code that uses them)
+from .compiled import inverse_transpose  # noqa: E402
+from .engine_maps import (KAMINO_EXP_SERIES_BELOW, NEWTON_STEPS, STEEL_GYRO_ENERGY_RTOL,  # noqa: E402
+                          STEEL_GYRO_ITERATIONS, STEEL_GYRO_MAX_MICROSTEPS)
+
+_NEWTON_KIND = {name: i for i, name in enumerate(NEWTON_STEPS)}  # run_newton's switch
+
+
+@jit
+def newton_quat_rate_integrate(q, w, h):
+    """engine_maps.newton_quat_rate_integrate: normalize(q + h/2 (0, w) q), w world."""
+    p = add4(q, scale4(0.5 * h, quat_multiply((0.0, w[0], w[1], w[2]), q)))
+    return scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
+
+
+@jit
+def steel_gyroscopic_velocity(I_b, u, h):
+    """engine_maps.steel_gyroscopic_velocity: Cayley microsteps of the body rate u."""
+    s = max(I_b[0][0], max(I_b[1][1], I_b[2][2]))
+    A = mat_scale(1.0 / s, I_b)
+    A_inv_t = inverse_transpose(A)
+    speed = math.sqrt(max(dot(u, matvec(A, u)) * (A_inv_t[0][0] + A_inv_t[1][1] + A_inv_t[2][2]), 0.0))
+    m = int(min(max(math.ceil(2.0 * abs(h) * speed), 1.0), float(STEEL_GYRO_MAX_MICROSTEPS)))
+    h_m = h / m
+    w = u
+    for _ in range(m):
+        u = w
+        energy = dot(u, matvec(A, u))
+        for _ in range(STEEL_GYRO_ITERATIONS):
+            S = mat_scale(0.5 * h_m, skew(matvec(A, scale(0.5, add(u, w)))))
+            candidate = solve(mat_sub(A, S), matvec(mat_add(A, S), u))
+            delta = sub(candidate, w)
+            w = candidate
+            if dot(delta, matvec(A, delta)) <= STEEL_GYRO_ENERGY_RTOL * energy:
+                break
+    return w
+
+
+@jit
+def quat_rate_cayley_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads):
+    """engine_maps.quat_rate_cayley_gyro_step (Newton Steel)."""
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R, loads)
+    v = add(v, scale(h, add(div(f, M), g)))
+    Rt = transpose(R)
+    u = add(matvec(Rt, w), scale(h, matvec(I_inv, matvec(Rt, tau))))
+    w = matvec(R, steel_gyroscopic_velocity(I_b, u, h))
+    return add(x, scale(h, v)), newton_quat_rate_integrate(q, w, h), v, w
+
+
+@jit
+def quat_rate_pose_velocity_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads):
+    """engine_maps.quat_rate_pose_velocity_step (Newton VBD)."""
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R, loads)
+    v = add(v, scale(h, add(div(f, M), g)))
+    Rt = transpose(R)
+    w_b = matvec(Rt, w)
+    w = matvec(R, add(w_b, scale(h, matvec(I_inv, sub(matvec(Rt, tau), cross(w_b, matvec(I_b, w_b)))))))
+    q_next = newton_quat_rate_integrate(q, w, h)
+    a = h * math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    if a > 0.0:
+        w = scale(2.0 * math.atan(0.5 * a) / a, w)
+    return add(x, scale(h, v)), q_next, v, w
+
+
+@jit
+def kamino_quat_exp(phi):
+    """engine_maps.kamino_quat_exp."""
+    n = math.sqrt(dot(phi, phi))
+    if n > KAMINO_EXP_SERIES_BELOW:
+        s = math.sin(0.5 * n) / n
+        return (math.cos(0.5 * n), s * phi[0], s * phi[1], s * phi[2])
+    return (1.0, 0.5 * phi[0], 0.5 * phi[1], 0.5 * phi[2])
+
+
+@jit
+def explicit_gyro_rescaled_torque_last_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads):
+    """engine_maps.explicit_gyro_rescaled_torque_last_step (Newton Kamino)."""
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R, loads)
+    Rt = transpose(R)
+    I_w = matmul(matmul(R, I_b), Rt)
+    L = matvec(I_w, w)
+    L_new = sub(L, scale(h, cross(w, L)))
+    n = math.sqrt(dot(L_new, L_new))
+    L_new = scale(math.sqrt(dot(L, L)) / n, L_new) if n > 0.0 else (0.0, 0.0, 0.0)
+    v = add(v, scale(h, add(g, div(f, M))))
+    I_w_inv = matmul(matmul(R, I_inv), Rt)
+    w = add(w, scale(h, matvec(I_w_inv, add(div(sub(L_new, L), h), tau))))
+    return add(x, scale(h, v)), quat_multiply(kamino_quat_exp(scale(h, w)), q), v, w
+
+
+@jit
+def run_newton(kind, x, q, v, w, dt, steps, M, I_b, I_inv, g, loads, out_x, out_q, out_v, out_w):
+    """Rows 1..steps of x, q, v, w (world) of the Newton map ``kind`` (_NEWTON_KIND)."""
+    for k in range(steps):
+        if kind == 0:
+            x, q, v, w = quat_rate_cayley_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads)
+        elif kind == 1:
+            x, q, v, w = quat_rate_pose_velocity_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads)
+        else:
+            x, q, v, w = explicit_gyro_rescaled_torque_last_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads)
+        _put(out_x, k + 1, x)
+        _put(out_q, k + 1, q)
+        _put(out_v, k + 1, v)
+        _put(out_w, k + 1, w)
+
+
+# --- Brax 0.14 --------------------------------------------------------------------------------------
+# (imported here, beside the only code that uses it)
+from .engine_maps import BRAX_ANGULAR_NORM_EPS  # noqa: E402
+
+# The Brax maps, in run_brax's ``kind`` order.
+BRAX_MAPS = ("explicit-gyro-regularised-exp", "semi-implicit-no-gyro", "semi-implicit-no-gyro-projected")
+
+
+@jit
+def brax_integrate_free_rotation(q, w_b, h):
+    """engine_maps.brax_integrate_free_rotation: normalize(q * (cos(a/2), w_b / n sin(a/2))),
+    n = |w_b| + 1e-8, a = h n."""
+    n = math.sqrt(w_b[0] * w_b[0] + w_b[1] * w_b[1] + w_b[2] * w_b[2]) + BRAX_ANGULAR_NORM_EPS
+    axis = div(w_b, n)
+    a = h * n
+    s = math.sin(0.5 * a)
+    p = quat_multiply(q, (math.cos(0.5 * a), axis[0] * s, axis[1] * s, axis[2] * s))
+    return scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
+
+
+@jit
+def explicit_gyro_regularised_exp_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads):
+    """engine_maps.explicit_gyro_regularised_exp_step (Brax generalized)."""
+    x, v, w_b = semi_implicit_velocities(k, x, matrix_from_quat(q), v, w_b, dt, M, I_b, I_inv, g, loads, False)
+    return x, brax_integrate_free_rotation(q, w_b, dt), v, w_b
+
+
+@jit
+def brax_quat_rate_integrate(q, w, h):
+    """engine_maps.brax_quat_rate_integrate: normalize(q + (0, w h / 2) q), w world."""
+    hh = 0.5 * h
+    p = add4(q, quat_multiply((0.0 * hh, w[0] * hh, w[1] * hh, w[2] * hh), q))
+    return scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
+
+
+@jit
+def semi_implicit_no_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads, project):
+    """engine_maps.semi_implicit_no_gyro_step (Brax spring; positional with ``project``)."""
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R, loads)
+    w_next = add(w, scale(h, matvec(R, matvec(I_inv, matvec(transpose(R), tau)))))
+    v_next = add(v, scale(h, add(g, div(f, M))))
+    x_next = add(x, scale(h, v_next))
+    q_next = brax_quat_rate_integrate(q, w_next, h)
+    if project:
+        v_next = div(sub(x_next, x), h)
+        dq = quat_multiply(q_next, (q[0], -q[1], -q[2], -q[3]))
+        sign = 1.0 if dq[0] >= 0.0 else -1.0
+        w_next = ((2.0 * dq[1] / h) * sign, (2.0 * dq[2] / h) * sign, (2.0 * dq[3] / h) * sign)
+    return x_next, q_next, v_next, w_next
+
+
+@jit
+def run_brax(x, q, v, w, dt, steps, M, I_b, I_inv, g, loads, kind, out_x, out_q, out_v, out_w):
+    """Rows 1..steps of x, q, v and w (world) of BRAX_MAPS[kind]; kind 0 carries w in the body
+    frame (Brax's qd) and reports R w_b."""
+    for k in range(steps):
+        if kind == 0:
+            x, q, v, w = explicit_gyro_regularised_exp_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads)
+            _put(out_w, k + 1, matvec(matrix_from_quat(q), w))
+        else:
+            x, q, v, w = semi_implicit_no_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads, kind == 2)
+            _put(out_w, k + 1, w)
+        _put(out_x, k + 1, x)
+        _put(out_q, k + 1, q)
+        _put(out_v, k + 1, v)
+
+
+__all__ += ["BRAX_MAPS", "brax_integrate_free_rotation", "explicit_gyro_regularised_exp_step",
+            "brax_quat_rate_integrate", "semi_implicit_no_gyro_step", "run_brax"]
+
+
 # --- from a Problem --------------------------------------------------------------------------------
 
 def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: int) -> Trajectory:
@@ -492,6 +678,14 @@ def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: 
         run_drake(np.concatenate([q, x, w, v]), dt, steps, M, mat(I_b), vec(g), loads, A, b,
                   name == DRAKE_SEMI_IMPLICIT, out.position, out.quaternion_wxyz, out.linear_velocity,
                   out.angular_velocity)
+    elif name in _NEWTON_KIND:
+        run_newton(_NEWTON_KIND[name], vec(x), vec(q), vec(v), vec(w), dt, steps, M, mat(I_b), mat(I_inv),
+                   vec(g), loads, out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity)
+    elif name in BRAX_MAPS:
+        kind = BRAX_MAPS.index(name)
+        w0 = _numpy_matrix_from_quat(q).T @ w if kind == 0 else w  # generalized carries the body-frame w
+        run_brax(vec(x), vec(q), vec(v), vec(w0), dt, steps, M, mat(I_b), mat(I_inv), vec(g), loads, kind,
+                 out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity)
     elif name == "implicit-gyro-split-torque":
         moments, V, q_V = principal_frame(I_b)
         B = bullet_matrix_from_quat(vec(_numpy_qmul(q, q_V)))

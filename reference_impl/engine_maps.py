@@ -26,6 +26,18 @@ Maps (``ENGINE_MAPS[name]``):
 - ``explicit-gyro-rescaled-momentum`` (PhysX 5 as SAPIEN drives it, ``pgs`` and ``tgs``): semi-implicit
   Euler whose explicit gyroscopic step, taken after the torque impulse in the principal frame,
   rescales the body momentum to its old length; the world-frame exponential map.
+- ``quat-rate-cayley-gyro`` (Newton 1.8 ``SolverSteel``): Drake's discrete map with the explicit
+  gyroscopic kick replaced by energy-preserving Cayley (implicit-midpoint) microsteps.
+- ``quat-rate-pose-velocity`` (Newton 1.8 ``SolverVBD``): the pose of Drake's discrete map, the
+  velocities re-derived from the poses (w = Log(q+ q^-1) / h: shorter than the w that turned it).
+- ``explicit-gyro-rescaled-torque-last`` (Newton 1.8 ``SolverKamino``): PhysX's rescaled explicit
+  gyroscopic step taken from the step's start, the torque impulse added after it.
+- ``explicit-gyro-regularised-exp`` (Brax ``generalized``): the reference
+  ``semi-implicit-explicit-gyro`` whose body-frame exponential map divides by |w_b| + 1e-8.
+- ``semi-implicit-no-gyro`` (Brax ``spring``): semi-implicit Euler with NO gyroscopic term, world
+  w += h I_w^-1 tau (torque-free, w is constant in the world), q += h/2 (0, w) q renormalised.
+- ``semi-implicit-no-gyro-projected`` (Brax ``positional``): that step, then the velocities
+  re-derived from the positions, w = 2 vec(q+ q^-1) / h (shorter than the w that turned it).
 - ``quat-rate-semi-implicit``, ``quat-rate-euler``, ``quat-rate-rk2``, ``quat-rate-rk3``,
   ``quat-rate-bs3``, ``quat-rate-rk5`` (Drake 1.51: the discrete MultibodyPlant and
   ``semi_explicit_euler``; ``explicit_euler``, ``runge_kutta2``, ``runge_kutta3``,
@@ -67,7 +79,9 @@ __all__ = ["ENGINE_MAPS", "simulate_engine_map", "rkmk4_body_step", "rk4_body_ex
            "principal_frame", "explicit_gyro_rescaled_momentum_step", "physx_principal_frame",
            "physx_gyroscopic_velocity", "physx_integrate_rotation",
            "DRAKE_TABLEAUS", "DRAKE_SEMI_IMPLICIT", "drake_time_derivatives", "drake_explicit_rk_step",
-           "drake_semi_explicit_euler_step"]
+           "drake_semi_explicit_euler_step", "NEWTON_STEPS", "newton_quat_rate_integrate",
+           "steel_gyroscopic_velocity", "quat_rate_cayley_gyro_step", "quat_rate_pose_velocity_step",
+           "kamino_quat_exp", "explicit_gyro_rescaled_torque_last_step"]
 
 # MuJoCo's mjMINVAL (mjmodel.h): below it a norm counts as zero; a quaternion whose norm is within
 # it of 1 is not rescaled (mju_normalize4).
@@ -748,6 +762,97 @@ def explicit_gyro_rescaled_torque_last_step(k: int, x, q, v, w, dt: float, M: fl
     return x + h * v, quat_multiply(kamino_quat_exp(h * w), q), v, w
 
 
+# --- Brax 0.14 (generalized, spring, positional pipelines) ----------------------------------------
+
+# brax.generalized.integrator._integrate_q_free adds this to |w_b| before dividing by it (rad/s).
+BRAX_ANGULAR_NORM_EPS = 1e-8
+
+
+def brax_integrate_free_rotation(q: np.ndarray, w_b: np.ndarray, h: float) -> np.ndarray:
+    """The rotation of Brax's free joint in ``generalized`` (``_integrate_q_free``,
+    brax/generalized/integrator.py): n = |w_b| + 1e-8, axis = w_b / n, a = h n,
+    q+ = normalize(q * (cos(a / 2), axis sin(a / 2))), w_b (3,) rad/s BODY frame, q (4,) wxyz.
+
+    The axis is not a unit vector (|axis| = |w_b| / n): after the normalisation the step turns by
+    2 atan(|w_b| / n tan(a / 2)) = h |w_b| + h^3 |w_b|^2 1e-8 / 6 + ..., the exact exponential map
+    but for a bias of 4e-14 rad a step at |w| = 5 rad/s and h = 0.01 (1e3 times less at h = 0.001)."""
+    n = np.sqrt(w_b[0] * w_b[0] + w_b[1] * w_b[1] + w_b[2] * w_b[2]) + BRAX_ANGULAR_NORM_EPS
+    axis = w_b / n
+    a = h * n
+    s = np.sin(0.5 * a)
+    p = quat_multiply(q, np.array([np.cos(0.5 * a), axis[0] * s, axis[1] * s, axis[2] * s]))
+    return p * (1.0 / np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]))
+
+
+def explicit_gyro_regularised_exp_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g,
+                                       wrench: Wrench):
+    """``explicit-gyro-regularised-exp``: Brax's ``generalized`` pipeline on a lone free body
+    (verified on Brax 0.14.2, float64; ``generalized/pipeline.py`` step, ``dynamics.forward``,
+    ``integrator.integrate``).
+
+    Semi-implicit Euler in the free joint's (q, qd): the bias forces by recursive Newton-Euler (the
+    gyroscopic term, explicit), qd+ = qd + h M^-1 (tau - bias), x+ = x + h v+, and the rotation by
+    :func:`brax_integrate_free_rotation`: the reference ``semi-implicit-explicit-gyro``
+    (w_b+ = w_b + h I^-1 (tau_b - w_b x I w_b), v+ = v + h (f/M + g)) with the regularised
+    exponential map.  (M^-1 comes from Newton-Schulz iterations warm-started at the previous step's
+    inverse, Brax's matrix_inv_iterations = 10: converged to round-off on a lone body.)
+
+    State: x (3,) m COM world, q (4,) wxyz body -> world, v (3,) m/s world, w_b (3,) rad/s body
+    frame (Brax's qd[3:6]); I_b, I_inv (3, 3) body frame; g (3,) m/s^2.
+    """
+    x, v, w_b = semi_implicit_velocities(k, x, matrix_from_quat(q), v, w_b, dt, M, I_b, I_inv, g, wrench)
+    return x, brax_integrate_free_rotation(q, w_b, dt), v, w_b
+
+
+def brax_quat_rate_integrate(q: np.ndarray, w: np.ndarray, h: float) -> np.ndarray:
+    """The rotation of Brax's ``spring`` and ``positional`` integrators (``integrate``,
+    ``integrate_xdd``): q+ = normalize(q + (0, w h / 2) q), w (3,) rad/s WORLD frame, q (4,) wxyz.
+    A step turns by 2 atan(h |w| / 2) about w."""
+    p = q + quat_multiply(np.array([0.0, w[0], w[1], w[2]]) * (0.5 * h), q)
+    return p * (1.0 / np.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]))
+
+
+def semi_implicit_no_gyro_step(k: int, x, q, v, w, dt: float, M: float, I_b, I_inv, g, wrench: Wrench,
+                               project: bool = False):
+    """``semi-implicit-no-gyro`` (Brax ``spring``) and, with ``project``,
+    ``semi-implicit-no-gyro-projected`` (Brax ``positional``); verified on Brax 0.14.2, float64
+    (``spring/pipeline.py``, ``spring/integrator.py``; ``positional/pipeline.py``,
+    ``positional/integrator.py``).
+
+    Semi-implicit Euler on the world-frame velocities of the COM frame WITHOUT a gyroscopic term:
+    w+ = w + h I_w^-1 tau (I_w^-1 = R I_b^-1 R^T at the step's start; Brax forms it from the
+    principal moments), v+ = v + h (g + f/M), x+ = x + h v+, q+ = :func:`brax_quat_rate_integrate`
+    (q, w+, h).  Torque-free, w never changes in the world: the body turns about a fixed world axis
+    whatever its inertia (no precession, no Dzhanibekov flip), and L = I_w w is not conserved.
+    (Brax's velocity damping exp(d h), d = ang/vel_damping = 0, is a factor 1.)
+
+    ``project``: ``positional`` then re-derives the velocities from the positions
+    (``project_xd``): v+ = (x+ - x) / h, dq = q+ q^-1, w+ = sign(dq_w) 2 vec(dq) / h.  Since
+    dq = (1, h w / 2) / sqrt(1 + h^2 |w|^2 / 4), that is w+ / sqrt(1 + h^2 |w+|^2 / 4): |w| shrinks
+    every step and the rotational energy drains.  Formed as Brax forms it, by differences of the
+    positions (their round-off, about eps / (h |w|) of w a step, is part of the map).
+
+    State: x (3,) m COM world, q (4,) wxyz body -> world, v (3,) m/s world, w (3,) rad/s WORLD frame
+    (Brax's x_i and xd_i); I_b, I_inv (3, 3) body frame; g (3,) m/s^2.
+    """
+    h = dt
+    R = matrix_from_quat(q)
+    f, tau = wrench(k, x, R)
+    w_next = w + h * (R @ (I_inv @ (R.T @ tau)))
+    v_next = v + h * (g + f / M)
+    x_next = x + h * v_next
+    q_next = brax_quat_rate_integrate(q, w_next, h)
+    if project:
+        v_next = (x_next - x) / h
+        dq = quat_multiply(q_next, quat_conjugate(q))
+        w_next = (2.0 * dq[1:] / h) * (1.0 if dq[0] >= 0.0 else -1.0)
+    return x_next, q_next, v_next, w_next
+
+
+__all__ += ["BRAX_ANGULAR_NORM_EPS", "brax_integrate_free_rotation", "explicit_gyro_regularised_exp_step",
+            "brax_quat_rate_integrate", "semi_implicit_no_gyro_step"]
+
+
 # --- whole runs -----------------------------------------------------------------------------------
 
 def _start(problem: Problem):
@@ -865,6 +970,29 @@ def _simulate_newton(problem: Problem, dt: float, steps: int, name: str) -> Traj
     return out
 
 
+def _simulate_brax(problem: Problem, dt: float, steps: int, name: str) -> Trajectory:
+    """A Brax map from the case's state as written; ``explicit-gyro-regularised-exp`` carries the
+    body-frame w (Brax's qd) and reports R w_b, the others the world-frame w (Brax's xd_i)."""
+    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    wrench = wrench_function(problem, dt)
+    generalized = name == "explicit-gyro-regularised-exp"
+    if generalized:
+        w = matrix_from_quat(q).T @ w
+    out = Trajectory.empty(steps + 1)
+    out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0] = x, q, v
+    out.angular_velocity[0] = problem.initial.angular_velocity
+    for k in range(steps):
+        if generalized:
+            x, q, v, w = explicit_gyro_regularised_exp_step(k, x, q, v, w, dt, M, I_b, I_inv, g, wrench)
+        else:
+            x, q, v, w = semi_implicit_no_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, wrench,
+                                                    project=name == "semi-implicit-no-gyro-projected")
+        out.position[k + 1], out.quaternion_wxyz[k + 1], out.linear_velocity[k + 1] = x, q, v
+        out.angular_velocity[k + 1] = matrix_from_quat(q) @ w if generalized else w
+    out.t[:] = np.arange(steps + 1) * dt
+    return out
+
+
 # Compiled kernel of each map (compiled_engine_maps.simulate_compiled_engine_map's switch)
 _NUMPY_RUNS = {
     "rkmk4-body": lambda pb, dt, n: _simulate_mujoco_rk4(pb, dt, n, munthe_kaas=True),
@@ -875,6 +1003,8 @@ _NUMPY_RUNS = {
        for name in (DRAKE_SEMI_IMPLICIT, *DRAKE_TABLEAUS)},
     "explicit-gyro-rescaled-momentum": _simulate_physx,
     **{name: (lambda pb, dt, n, name=name: _simulate_newton(pb, dt, n, name)) for name in NEWTON_STEPS},
+    **{name: (lambda pb, dt, n, name=name: _simulate_brax(pb, dt, n, name))
+       for name in ("explicit-gyro-regularised-exp", "semi-implicit-no-gyro", "semi-implicit-no-gyro-projected")},
 }
 
 # The engine-equivalent maps, by name: candidates for scheme identification beside the reference
@@ -926,6 +1056,15 @@ ENGINE_MAPS: dict[str, Integrator] = {
                    "semi-implicit Euler, explicit gyroscopic step of L = I_w w rescaled to |L| from "
                    "the step's start, torque impulse after it, world exp map (Newton 1.8 Kamino)",
                    _NUMPY_RUNS["explicit-gyro-rescaled-torque-last"]),
+        Integrator("explicit-gyro-regularised-exp", 1, False,
+                   "semi-implicit Euler, explicit gyroscopic term, body exp map with |w_b| + 1e-8 "
+                   "(Brax 0.14 generalized)", _NUMPY_RUNS["explicit-gyro-regularised-exp"]),
+        Integrator("semi-implicit-no-gyro", 1, False,
+                   "semi-implicit Euler with NO gyroscopic term: world w += h I_w^-1 tau, q + h/2 (0, w) q "
+                   "renormalised (Brax 0.14 spring)", _NUMPY_RUNS["semi-implicit-no-gyro"]),
+        Integrator("semi-implicit-no-gyro-projected", 1, False,
+                   "semi-implicit-no-gyro, velocities re-derived from the positions: w = 2 vec(q+ q^-1) / h "
+                   "(Brax 0.14 positional)", _NUMPY_RUNS["semi-implicit-no-gyro-projected"]),
     ]
 }
 

@@ -12,9 +12,11 @@ import pytest
 from freebody.adapters.base import REFERENCE_ENGINE, engine_names, install_hint, is_available
 
 # Engines whose every run is expensive: mjx JIT-compiles each integrator and precision (tens of
-# seconds on 2 cores).  Their parameters carry the ``slow`` mark (``pytest -m "not slow"`` leaves
-# them out), and tests that run many cases or bodies per engine leave them out (FAST_ENGINES).
-SLOW_ENGINES = frozenset({"mjx"})
+# seconds on 2 cores), newton each solver (Warp, 5-40 s on a cold kernel cache), brax each pipeline
+# and precision (JAX, 1-6 s a program, a few programs per pipeline).  Their parameters
+# carry the ``slow`` mark (``pytest -m "not slow"`` leaves them out), and tests that run many
+# cases or bodies per engine leave them out (FAST_ENGINES).
+SLOW_ENGINES = frozenset({"mjx", "newton", "brax"})
 
 
 def engine_marks(engine: str) -> list:

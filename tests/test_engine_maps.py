@@ -200,6 +200,24 @@ def _steps(name: str, pb: Problem, dt: float):
                                                                      E.DRAKE_TABLEAUS[name]))
             compiled_step = lambda k, s: split(CE.drake_explicit_rk_step(k, join(s), dt, M, I_b_c, g_c, loads, A, b))  # noqa: E731
         return (x, q, v, w), numpy_step, compiled_step
+    if name in E.NEWTON_STEPS:  # Newton's Steel, VBD, Kamino: canonical (x, q, v, w)
+        compiled = {"quat-rate-cayley-gyro": CE.quat_rate_cayley_gyro_step,
+                    "quat-rate-pose-velocity": CE.quat_rate_pose_velocity_step,
+                    "explicit-gyro-rescaled-torque-last": CE.explicit_gyro_rescaled_torque_last_step}[name]
+        return ((x, q, v, w),
+                lambda k, s: E.NEWTON_STEPS[name](k, *s, dt, M, I_b, I_inv, g, wrench),
+                lambda k, s: compiled(k, *_tuples(s), dt, M, I_b_c, I_inv_c, g_c, loads))
+    if name == "explicit-gyro-regularised-exp":  # Brax generalized: (x, q, v, w_b)
+        return ((x, q, v, matrix_from_quat(q).T @ w),
+                lambda k, s: E.explicit_gyro_regularised_exp_step(k, *s, dt, M, I_b, I_inv, g, wrench),
+                lambda k, s: CE.explicit_gyro_regularised_exp_step(k, *_tuples(s), dt, M, I_b_c, I_inv_c, g_c,
+                                                                   loads))
+    if name in ("semi-implicit-no-gyro", "semi-implicit-no-gyro-projected"):  # Brax spring, positional
+        project = name == "semi-implicit-no-gyro-projected"
+        return ((x, q, v, w),
+                lambda k, s: E.semi_implicit_no_gyro_step(k, *s, dt, M, I_b, I_inv, g, wrench, project),
+                lambda k, s: CE.semi_implicit_no_gyro_step(k, *_tuples(s), dt, M, I_b_c, I_inv_c, g_c, loads,
+                                                           project))
     phi = E.dart_log_map(matrix_from_quat(q))
     return ((x, phi, v, E.dart_exp_map_rot(phi).T @ w),
             lambda k, s: E.explicit_gyro_truncated_exp_step(k, *s, dt, M, I_b, I_inv, g, wrench),

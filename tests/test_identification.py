@@ -33,6 +33,12 @@ EXACT_ROTATION_MAPS = {"semi-implicit-explicit-gyro", "semi-implicit-implicit-gy
                        # Drake's RK5 (quaternion rate, never renormalised): fifth order, its error on
                        # a sphere's spin at dt 1e-3 is below round-off
                        "quat-rate-rk5"}
+# Brax generalized's map is semi-implicit-explicit-gyro with |w_b| + 1e-8 in its exponential map: a
+# turn of h |w| + h^3 |w|^2 1e-8 / 6 a step, below round-off on a sphere's spin at dt 1e-3
+REGULARISED_EXP_MAP = "explicit-gyro-regularised-exp"
+EXACT_ROTATION_MAPS |= {REGULARISED_EXP_MAP}
+# Newton Kamino's map: PhysX's rescaled explicit gyroscopic step (none on a sphere), Exp(h w) q
+EXACT_ROTATION_MAPS |= {"explicit-gyro-rescaled-torque-last"}
 # DART's map differs from semi-implicit-explicit-gyro only by its truncated exponential below 1e-3 rad
 # a step: on a sphere at dt 1e-3 it is not exact (h |w| < 1e-3 there)
 TRUNCATED_EXP_MAP = "explicit-gyro-truncated-exp"
@@ -116,7 +122,8 @@ def test_a_spin_of_a_sphere_is_a_tie_of_the_exact_rotation_maps():
         run = {"matches_reference": m, "engine": "e", "integrator": "Euler", "case": "spinning_sphere",
                "dt": dt, "status": "ok", "metrics": {}}
         text = ("tie: semi-implicit-explicit-gyro = semi-implicit-implicit-gyro = rkmk4-body = rk4-body-exp = "
-                "implicit-gyro-split-torque = explicit-gyro-rescaled-momentum = quat-rate-rk5 = lie-euler = "
+                "implicit-gyro-split-torque = explicit-gyro-rescaled-momentum = quat-rate-rk5 = "
+                "explicit-gyro-rescaled-torque-last = explicit-gyro-regularised-exp = lie-euler = "
                 "symplectic-splitting = rkmk4")
         assert rd.reproduces(run).startswith(text)
         assert rd.reproduction_summary([run])[0][1] == text
@@ -192,12 +199,13 @@ def test_mujoco_euler_is_its_map_on_a_chaotic_horizon():
     pb, dt, n = load_case("dzhanibekov"), 0.001, 60000
     m = _identify(pb, _engine_run("mujoco", pb, "Euler", dt, n), "Euler", dt, n)
     # DART's map is the same scheme but for its truncated exponential, below 1e-3 rad a step: here
-    # h |w| = 5e-3, so the two are one map on this case (a tie)
+    # h |w| = 5e-3, so the two are one map on this case (a tie); so is Brax's regularised one at dt 1e-3
     assert m["integrator"] == "semi-implicit-explicit-gyro"
-    assert m["indistinguishable"] == [m["integrator"], TRUNCATED_EXP_MAP]
+    assert m["indistinguishable"] == [m["integrator"], TRUNCATED_EXP_MAP, REGULARISED_EXP_MAP]
     assert m["max_orientation_diff_rad"] > 1e3 * tol.SCHEME_ROUNDOFF_FLOOR_RAD
     assert m["ratios"]["semi-implicit-explicit-gyro"] <= 1 < min(
-        v for k, v in m["ratios"].items() if k not in ("semi-implicit-explicit-gyro", TRUNCATED_EXP_MAP) and v)
+        v for k, v in m["ratios"].items()
+        if k not in ("semi-implicit-explicit-gyro", TRUNCATED_EXP_MAP, REGULARISED_EXP_MAP) and v)
 
 
 @requires_mujoco
