@@ -496,6 +496,15 @@ def unsupported_version(cls, version: str | None) -> str | None:
             f"{dist}{supported} (e.g. --engine '{cls.name}{supported.split(',')[0]}')")
 
 
+def distribution_version(distribution: str, fallback: Callable[[], object]) -> str:
+    """The installed version of an engine's pip distribution (what ``engine_version`` reports);
+    ``str(fallback())`` when its metadata is missing (a source build)."""
+    try:
+        return importlib.metadata.version(distribution)
+    except importlib.metadata.PackageNotFoundError:
+        return str(fallback())
+
+
 def is_available(name: str) -> bool:
     """Whether the engine's package can be found, without importing it."""
     import_name = registry()[base_engine(name)].import_name

@@ -93,7 +93,6 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import hashlib
-import importlib.metadata
 import inspect
 import threading
 import time
@@ -120,7 +119,7 @@ from ..reference_impl.problem import Body, InitialState, Load, Problem
 from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_from_matrix, quat_from_rotvec,
                                         quat_multiply)
 from .. import tolerances as tol
-from .base import Adapter
+from .base import Adapter, distribution_version
 from .mjx_adapter import (_ROW, _SPARSITY_FIELDS, _compiled, _current_x64, _full_pattern, _load_rows,
                           _quat_matrix, _x64)
 from .mujoco_adapter import _alignfree_default, _fmt, _inertial_element, _trajectory
@@ -453,10 +452,7 @@ class BraxAdapter(Adapter):
     # --- capabilities --------------------------------------------------------------------------
     @classmethod
     def engine_version(cls) -> str:
-        try:
-            version = importlib.metadata.version("brax")
-        except importlib.metadata.PackageNotFoundError:  # pragma: no cover - source builds
-            version = str(getattr(brax, "__version__", "unknown"))
+        version = distribution_version("brax", lambda: getattr(brax, "__version__", "unknown"))
         return f"{version} (jax {jax.__version__})"
 
     @classmethod

@@ -83,7 +83,6 @@ inertia read back as given.  No geometry, so no contact.
 """
 from __future__ import annotations
 
-import importlib.metadata
 from typing import Callable, ClassVar
 
 import numpy as np
@@ -98,7 +97,7 @@ from ..reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_fr
 from ..reference_impl.truth import truth_trajectory
 from ..tolerances import (DRAKE_OPT_IN_DERIVATIVES_PER_SIMULATED_SECOND, DRAKE_READBACK_ATOL,
                           DRAKE_STEP_SLACK, DRAKE_TRAP_NORM_DRIFT_MIN, DRAKE_TRAP_NORM_RTOL)
-from .base import Adapter, EngineDiverged
+from .base import Adapter, EngineDiverged, distribution_version
 
 # freebody's name of a continuous integrator -> Drake's scheme (GetIntegrationSchemes()).
 _SCHEMES: dict[str, str] = {
@@ -223,11 +222,9 @@ class DrakeAdapter(Adapter):
 
     @classmethod
     def engine_version(cls) -> str:
-        try:
-            return importlib.metadata.version("drake")
-        except importlib.metadata.PackageNotFoundError:  # pragma: no cover - a source build
-            import pydrake
-            return str(getattr(pydrake, "__version__", "unknown"))
+        import pydrake
+
+        return distribution_version("drake", lambda: getattr(pydrake, "__version__", "unknown"))
 
     @classmethod
     def offered_integrators(cls) -> tuple[str, ...]:

@@ -98,7 +98,6 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import hashlib
-import importlib.metadata
 import importlib.util
 import inspect
 import io
@@ -132,7 +131,7 @@ except ImportError:  # no POSIX file locks (Windows): processes may compile the 
 
 from ..reference_impl.conventions import Trajectory  # noqa: E402
 from ..reference_impl.problem import Body, InitialState, Problem  # noqa: E402
-from .base import Adapter, BatchRun, UnsupportedOption  # noqa: E402
+from .base import Adapter, BatchRun, UnsupportedOption, distribution_version  # noqa: E402
 from .loads import LoadSchedule  # noqa: E402
 from .mujoco_adapter import MujocoAdapter, _trajectory  # noqa: E402
 
@@ -516,10 +515,7 @@ class MjxAdapter(Adapter):
     # --- capabilities --------------------------------------------------------------------------
     @classmethod
     def engine_version(cls) -> str:
-        try:
-            mjx_version = importlib.metadata.version("mujoco-mjx")
-        except importlib.metadata.PackageNotFoundError:
-            mjx_version = "unknown"
+        mjx_version = distribution_version("mujoco-mjx", lambda: "unknown")
         return f"{mjx_version} (mujoco {mujoco.__version__}, jax {jax.__version__})"
 
     @classmethod

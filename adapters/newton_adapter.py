@@ -110,7 +110,6 @@ for the harness to detect.
 """
 from __future__ import annotations
 
-import importlib.metadata
 import importlib.util
 import sys
 import time
@@ -129,7 +128,7 @@ from ..reference_impl.problem import Body, InitialState, Load, Problem
 from ..reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply
 from ..tolerances import (NEWTON_READBACK_RTOL, NEWTON_TRAP_ENERGY_RTOL, NEWTON_TRAP_FREE_FLIGHT_RTOL,
                           NEWTON_TRAP_GRAVITY_RTOL, NEWTON_TRAP_PUSH_RTOL, NEWTON_TRAP_SPIN_RAD)
-from .base import Adapter
+from .base import Adapter, distribution_version
 from .capture import capture_output
 from .loads import Segment
 
@@ -269,10 +268,7 @@ class NewtonAdapter(Adapter):
     # --- capabilities ---------------------------------------------------------------------------
     @classmethod
     def engine_version(cls) -> str:
-        try:
-            version = importlib.metadata.version("newton")
-        except importlib.metadata.PackageNotFoundError:  # pragma: no cover - source builds
-            version = str(getattr(newton, "__version__", "unknown"))
+        version = distribution_version("newton", lambda: getattr(newton, "__version__", "unknown"))
         return f"{version} (warp {wp.__version__})"
 
     @classmethod

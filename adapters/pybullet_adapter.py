@@ -48,7 +48,6 @@ instability of its own; the harness detects divergence from the state.
 """
 from __future__ import annotations
 
-import importlib.metadata
 from typing import Callable, ClassVar
 
 import numpy as np
@@ -59,7 +58,7 @@ from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_c
                                         quat_from_matrix, quat_multiply, quat_normalize)
 from ..tolerances import (PYBULLET_EIGEN_ATOL_REL, PYBULLET_EIGEN_RTOL, PYBULLET_INITIAL_STATE_RTOL,
                           PYBULLET_PROBE_RTOL, PYBULLET_READBACK_RTOL)
-from .base import Adapter
+from .base import Adapter, distribution_version
 from .loads import Segment
 
 # The multibody velocity clamp is lifted to this (rad/s on each world angular-velocity coordinate,
@@ -130,10 +129,7 @@ class PybulletAdapter(Adapter):
 
     @classmethod
     def engine_version(cls) -> str:
-        try:
-            return importlib.metadata.version("pybullet")
-        except importlib.metadata.PackageNotFoundError:  # pragma: no cover - source builds
-            return f"API {pybullet.getAPIVersion()}"
+        return distribution_version("pybullet", lambda: f"API {pybullet.getAPIVersion()}")
 
     # --- building -----------------------------------------------------------------------------
     def build(self) -> None:

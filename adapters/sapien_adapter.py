@@ -73,7 +73,6 @@ SAPIEN's own libvulkan, and the adapter silences that one warning (freebody neve
 """
 from __future__ import annotations
 
-import importlib.metadata
 import math
 import struct
 import warnings
@@ -97,7 +96,7 @@ from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_f
 from ..tolerances import (SAPIEN_PROBE_RTOL, SAPIEN_READBACK_RTOL, SAPIEN_TRAP_ENERGY_RTOL,
                           SAPIEN_TRAP_FULL_INERTIA_RAD, SAPIEN_TRAP_GRAVITY_RTOL, SAPIEN_TRAP_SLEEP_RTOL,
                           SAPIEN_TRAP_SPIN_RTOL)
-from .base import Adapter
+from .base import Adapter, distribution_version
 from .loads import Segment
 
 # What the adapter sets for SAPIEN's traps (each read back in build(); the tests set them back to
@@ -199,10 +198,7 @@ class SapienAdapter(Adapter):
 
     @classmethod
     def engine_version(cls) -> str:
-        try:
-            return importlib.metadata.version("sapien")
-        except importlib.metadata.PackageNotFoundError:  # pragma: no cover - source builds
-            return str(sapien.__version__)
+        return distribution_version("sapien", lambda: sapien.__version__)
 
     @staticmethod
     def physx_version() -> str:
