@@ -21,7 +21,7 @@ import math
 from dataclasses import dataclass, field
 
 from .. import tolerances as tol
-from ..adapters.base import UnknownEngine, base_engine
+from ..adapters.base import UnknownEngine, base_engine, split_engine_name
 from ..errors import InputError
 from .compare import run_key, scheme_of, scheme_text
 
@@ -34,7 +34,10 @@ def _base(engine: str, _memo: dict[str, str] | None = None) -> str:
     try:
         out = base_engine(engine)
     except UnknownEngine:  # an engine this freebody does not know (a third party's): its own name
-        out = engine.split("=")[0].split("<")[0].split(">")[0].split("!")[0].split("~")[0]
+        try:
+            out = split_engine_name(engine)[0]
+        except UnknownEngine:  # not even ENGINE==VERSION: the name as it is
+            out = engine
     if _memo is not None:
         _memo[engine] = out
     return out

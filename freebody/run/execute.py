@@ -75,8 +75,8 @@ def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool
     version = settings = adapter = None
     try:
         version = cls.engine_version()
-        if unsupported_version(cls, version):
-            return _no_trajectory(base, Status.SKIPPED, unsupported_version(cls, version), 0.0, version)
+        if why := unsupported_version(cls, version):
+            return _no_trajectory(base, Status.SKIPPED, why, 0.0, version)
         adapter = cls(pb, spec.dt, spec.integrator, spec.precision)
         settings = adapter.settings
         try:
@@ -131,8 +131,8 @@ def _run_chunked(spec: RunSpec, cls, identify_scheme: bool, every: int, chunk: i
     version = settings = adapter = None
     try:
         version = cls.engine_version()
-        if unsupported_version(cls, version):
-            return _no_trajectory(base, Status.SKIPPED, unsupported_version(cls, version), 0.0, version), None
+        if why := unsupported_version(cls, version):
+            return _no_trajectory(base, Status.SKIPPED, why, 0.0, version), None
         adapter = cls(pb, dt, spec.integrator, spec.precision)
         settings = adapter.settings
     except KeyboardInterrupt:

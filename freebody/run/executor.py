@@ -69,6 +69,10 @@ class Task:
     def index(self) -> int:
         return self.run.index
 
+    def can_start(self, finished: set[int], has_truth: set[int]) -> bool:
+        """Whether its dependencies have finished and its group's truth exists."""
+        return self.deps <= finished and (self.truth_of is None or self.truth_of in has_truth)
+
 
 def _needed_references(spec: RunSpec) -> tuple[str, ...]:
     """Reference maps that scheme identification compares this run with (as runner.identify)."""
@@ -324,7 +328,7 @@ class LocalPool:
         truth in memory), else the first ready task."""
         found: dict[int, Task] = {}
         for t in pending:
-            if t.deps <= finished and (t.truth_of is None or t.truth_of in has_truth):
+            if t.can_start(finished, has_truth):
                 if t.group == w.group:
                     if (t.run.spec.engine, t.run.spec.precision) == w.kind:
                         return t
@@ -347,7 +351,7 @@ class LocalPool:
         for t in pending:
             py = self._python(t)
             left[py] = left.get(py, 0) + 1
-            if self.interpreters and t.deps <= finished and (t.truth_of is None or t.truth_of in has_truth):
+            if self.interpreters and t.can_start(finished, has_truth):
                 ready.add(py)
         for w in self.workers:
             if w.task is not None:
