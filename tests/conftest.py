@@ -10,6 +10,7 @@ from __future__ import annotations
 import pytest
 
 from freebody.adapters.base import REFERENCE_ENGINE, engine_names, install_hint, is_available
+from freebody.reference_impl.problem import Load
 
 # Engines whose every run is expensive: mjx JIT-compiles each integrator and precision (tens of
 # seconds on 2 cores), newton each solver (Warp, 5-40 s on a cold kernel cache), brax each pipeline
@@ -60,3 +61,14 @@ def compiled_reference_maps():
     problem = load_case("offset_push")  # loads of every kind: every kernel variant compiles
     for name in (*INTEGRATORS, *ENGINE_MAPS):
         simulate(problem, name, 0.01, 3)
+
+
+# One load of each kind, for the adapters' load tests (pybullet, sapien): a force at a body point,
+# at a world point and at the COM, a world couple and a body couple.
+LOAD_KINDS = {
+    "force at a body point": Load(force=(1.0, 2.0, -3.0), body_point=(0.3, -0.1, 0.2)),
+    "force at a world point": Load(force=(1.0, 2.0, -3.0), point=(0.0, 0.5, 0.0)),
+    "force at the COM": Load(force=(1.0, 2.0, -3.0)),
+    "world torque": Load(torque=(0.5, -1.0, 2.0)),
+    "body torque": Load(body_torque=(0.5, -1.0, 2.0)),
+}

@@ -11,6 +11,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from conftest import LOAD_KINDS
+
 pybullet = pytest.importorskip("pybullet", reason="pybullet not installed (pip install pybullet)")
 
 from freebody.adapters.base import load_adapter  # noqa: E402
@@ -201,13 +203,6 @@ def _maximal_map(problem: Problem, dt: float, steps: int):
     return np.array(qs), np.array(ws)
 
 
-LOAD_KINDS = {
-    "force at a body point": Load(force=(1.0, 2.0, -3.0), body_point=(0.3, -0.1, 0.2)),
-    "force at a world point": Load(force=(1.0, 2.0, -3.0), point=(0.0, 0.5, 0.0)),
-    "force at the COM": Load(force=(1.0, 2.0, -3.0)),
-    "world torque": Load(torque=(0.5, -1.0, 2.0)),
-    "body torque": Load(body_torque=(0.5, -1.0, 2.0)),
-}
 
 
 @pytest.mark.parametrize("kind", list(LOAD_KINDS))

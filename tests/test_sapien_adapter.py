@@ -20,6 +20,8 @@ import warnings
 import numpy as np
 import pytest
 
+from conftest import LOAD_KINDS
+
 with warnings.catch_warnings():  # SAPIEN's renderer warns when the system has no libvulkan
     warnings.filterwarnings("ignore", message="Failed to find system libvulkan")
     sapien = pytest.importorskip("sapien", reason="sapien not installed (pip install 'freebody[sapien]')")
@@ -376,13 +378,6 @@ def test_full_inertia_moves_as_the_rotated_diagonal_body(solver, make_adapter):
 
 # --- loads ------------------------------------------------------------------------------------------
 
-LOAD_KINDS = {
-    "force at a body point": Load(force=(1.0, 2.0, -3.0), body_point=(0.3, -0.1, 0.2)),
-    "force at a world point": Load(force=(1.0, 2.0, -3.0), point=(0.0, 0.5, 0.0)),
-    "force at the COM": Load(force=(1.0, 2.0, -3.0)),
-    "world torque": Load(torque=(0.5, -1.0, 2.0)),
-    "body torque": Load(body_torque=(0.5, -1.0, 2.0)),
-}
 
 
 @pytest.mark.parametrize("kind", list(LOAD_KINDS))
