@@ -105,6 +105,10 @@ class Adapter(ABC):
     compare_with: ClassVar[str | None] = None
     supported_versions: ClassVar[str | None] = None
     opt_in_integrators: ClassVar[tuple[str, ...]] = ()
+    # The largest angle (rad) one step turns the body through, when the engine caps it (Bullet's
+    # ANGULAR_MOTION_THRESHOLD, pi/4); None: no cap.  A run whose |w| dt exceeds it is recorded
+    # (results.json state_growth) and its findings name the cap.
+    step_rotation_cap_rad: ClassVar[float | None] = None
 
     def __init__(self, problem: Problem, dt: float, integrator: str, precision: str = "float64"):
         offered = self.offered_integrators()

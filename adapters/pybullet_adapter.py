@@ -48,6 +48,7 @@ instability of its own; the harness detects divergence from the state.
 """
 from __future__ import annotations
 
+import math
 from typing import Callable, ClassVar
 
 import numpy as np
@@ -102,6 +103,9 @@ class PybulletAdapter(Adapter):
     import_name: ClassVar[str] = "pybullet"
     supported_versions: ClassVar[str | None] = ">=3.2.5"  # as the engines extra requires
     integrators: ClassVar[tuple[str, ...]] = ("multibody", "maximal")
+    # both variants turn a body at most pi/4 a step (btTransformUtil::integrateTransform's
+    # ANGULAR_MOTION_THRESHOLD; btMultiBody::integrateTransform applies the same), see "rotation cap"
+    step_rotation_cap_rad: ClassVar[float | None] = math.pi / 4
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "(x, y, z, w), Hamilton, body -> world; converted to (w, x, y, z)",
         "angular velocity frame": "world (getBaseVelocity/resetBaseVelocity), no conversion",

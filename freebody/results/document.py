@@ -244,6 +244,7 @@ _RUN_FIELD_TYPES = {
     "matches_reference": (dict, type(None)), "vs_engine": (dict, type(None)), "engine_output": (list, type(None)),
     "wall_time_s": (*_NUMBER, type(None)), "diverged_at_s": (*_NUMBER, type(None)),
     "compile_time_s": (*_NUMBER, type(None)), "experiment": (dict, type(None)),
+    "state_growth": (dict, type(None)),
 }
 _JSON_TYPE = {str: "a string", int: "an integer", float: "a number", dict: "an object", list: "an array",
               type(None): "null"}

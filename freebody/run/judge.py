@@ -22,7 +22,7 @@ from ..reference_impl.truth import truth_trajectory
 from ..results.document import prefix_end, select_saved
 from .metrics import (DIVERGENCE_KINDS, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, ROTATION_ORTHONORMALITY_ERROR_MAX,
                       STAT_ARRAYS, Scales, Series, SeriesStats, divergence_bounds, divergence_decision,
-                      divergence_firsts, series, truth_scales)
+                      divergence_firsts, series, truth_scales, GrowthStats)
 from .records import RunOutput, RunResult, RunSpec, Simulated, Status, _clean, _describe, _identity, _no_trajectory
 
 # The engines' maps: what an engine integrator plausibly implements (rk4 only for an RK4 of its
@@ -121,6 +121,18 @@ def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bo
     return RunOutput(result, trajectory, whole_truth, judge.whole_series)
 
 
+def step_rotation_cap(spec: RunSpec) -> float | None:
+    """The largest rotation one step of the run's engine turns a body through (rad), as its adapter
+    declares it (``Adapter.step_rotation_cap_rad``); None for none, the reference engine, or an
+    adapter that cannot be loaded here."""
+    if spec.is_reference:
+        return None
+    try:
+        return getattr(load_adapter(spec.engine), "step_rotation_cap_rad", None)
+    except Exception:
+        return None
+
+
 class RunJudge:
     """Judges one run from its samples, delivered whole (:func:`finish`: one :meth:`feed`) or in
     consecutive chunks (a long run, :func:`freebody.run.execute.execute`), with the same rules and
@@ -153,6 +165,7 @@ class RunJudge:
         self.last: Trajectory | None = None
         self.whole_series: Series | None = None  # of a run fed in one piece
         self.every = every
+        self.growth = GrowthStats(spec.dt, step_rotation_cap(spec))
         self._rows: list = []
 
     def feed(self, tr: Trajectory, truth: Trajectory, diverged_at: float | None = None) -> None:
@@ -181,6 +194,7 @@ class RunJudge:
                 self.before[d] = self.stats.prefix(s, ortho, k0, prefix_end(d, k0 + m))
         before = {name: self.stats.maxima[name].best_index for name in STAT_ARRAYS}
         self.stats.update(s, ortho, k0)
+        self.growth.update(pb, tr, k0, self.scales)
         if self.every is not None:
             picks = [np.arange(-(-k0 // self.every) * self.every, k0 + m, self.every), [k0 + m - 1]]
             picks.append([v.best_index for name, v in self.stats.maxima.items()
@@ -239,7 +253,7 @@ class RunJudge:
                     final_state=self.last.state(0).as_dict() if ok else None,
                     matches_reference=self.identification.result() if ok and self.identification else None,
                     vs_engine=self.vs_engine.result() if ok and self.vs_engine else None,
-                    diverged_at_s=diverged_at)
+                    diverged_at_s=diverged_at, state_growth=self.growth.result(self.scales))
 
     def saved(self) -> tuple[Trajectory, Trajectory, Series, np.ndarray]:
         """(run, truth, series, sample indices) at the samples its trajectory file keeps (after

@@ -289,6 +289,87 @@ def divergence(problem: Problem, tr: Trajectory, truth: Trajectory) -> tuple[flo
     return None if found is None else (float(tr.t[found[0]]), found[1])
 
 
+# --- growth of the state beyond the truth's: blow-ups and the rotation per step ------------------
+# The results.json run field ``state_growth`` (optional: absent in results written before it).
+STATE_GROWTH = "state_growth"
+
+
+class GrowthStats:
+    """How far a run's |w| and kinetic energy grow beyond the truth's, and how far one step turns
+    the body, taken in chunk by chunk (the same numbers whole or in chunks): the results.json run
+    field ``state_growth`` (:meth:`result`).
+
+    dt : the run's step, s.  cap : the engine's largest rotation per step (rad,
+    ``Adapter.step_rotation_cap_rad``), None when it declares none.
+    """
+
+    def __init__(self, dt: float, cap: float | None = None):
+        self.dt, self.cap = float(dt), cap
+        self.omega = RunningMax()  # |w|, rad/s
+        self.ke = RunningMax()  # kinetic energy, J
+        self.t: dict[int, float] = {}  # global index -> t of the samples named in the result
+        self.blow_up: int | None = None  # global index of the first sample beyond a blow-up bound
+        self.capped: int | None = None  # ... of the first sample with |w| dt beyond the cap
+
+    def update(self, problem: Problem, tr: Trajectory, k0: int, scales: Scales) -> None:
+        """The run's next samples ``tr`` (global indices k0, k0 + 1, ...); ``scales``: the truth's
+        maxima over the whole run (the blow-up bounds, :func:`blow_up_bounds`)."""
+        if len(tr) == 0:
+            return
+        with np.errstate(all="ignore"):
+            w = np.linalg.norm(tr.angular_velocity, axis=1)
+            ke, _ = energies(problem, tr)
+        self.omega.update(w, k0)
+        self.ke.update(ke, k0)
+        for v in (self.omega, self.ke):
+            if v.best_index is not None and k0 <= v.best_index < k0 + len(tr):
+                self.t[v.best_index] = float(tr.t[v.best_index - k0])
+        bounds = blow_up_bounds(scales)
+        if self.blow_up is None:
+            i = _first((w > bounds["omega"]) | (ke > bounds["energy"]))
+            if i is not None:
+                self.blow_up = k0 + i
+                self.t[k0 + i] = float(tr.t[i])
+        if self.cap is not None and self.capped is None:
+            i = _first(w * self.dt > self.cap)
+            if i is not None:
+                self.capped = k0 + i
+                self.t[k0 + i] = float(tr.t[i])
+
+    def result(self, scales: Scales) -> dict:
+        """``state_growth``: omega_max_rad_s and omega_max_t_s (the run's largest finite |w| and its
+        first time), omega_ratio (that over the truth's max |w|, floored at
+        DIVERGENCE_OMEGA_FLOOR_RAD_S), kinetic_energy_ratio and kinetic_energy_max_t_s (likewise,
+        floored at DIVERGENCE_ENERGY_FLOOR_J), blow_up_t_s (the first sample beyond
+        BLOW_UP_OMEGA_FACTOR x or BLOW_UP_ENERGY_FACTOR x those, None: no blow-up),
+        rotation_per_step_max_rad (omega_max dt: the largest angle one step turns the body at the
+        run's own |w|) and, when the engine declares a cap, step_rotation_cap_rad and
+        rotation_cap_t_s (the first sample with |w| dt beyond it, None: never)."""
+        w_scale = max(scales.omega, tol.DIVERGENCE_OMEGA_FLOOR_RAD_S)
+        ke_scale = max(scales.ke, tol.DIVERGENCE_ENERGY_FLOOR_J)
+        w, ke = self.omega.best, self.ke.best
+        out = {
+            "omega_max_rad_s": w, "omega_max_t_s": self.t.get(self.omega.best_index),
+            "omega_ratio": None if w is None else finite_or_none(w / w_scale),
+            "kinetic_energy_ratio": None if ke is None else finite_or_none(ke / ke_scale),
+            "kinetic_energy_max_t_s": self.t.get(self.ke.best_index),
+            "blow_up_t_s": self.t.get(self.blow_up),
+            "rotation_per_step_max_rad": None if w is None else finite_or_none(w * self.dt),
+        }
+        if self.cap is not None:
+            out["step_rotation_cap_rad"] = float(self.cap)
+            out["rotation_cap_t_s"] = self.t.get(self.capped)
+        return out
+
+
+def blow_up_bounds(scales: Scales) -> dict[str, float]:
+    """The bounds of a blow-up (a finding, not a divergence): |w| (rad/s) and kinetic energy (J),
+    BLOW_UP_OMEGA_FACTOR and BLOW_UP_ENERGY_FACTOR times the truth's maxima (floored as the
+    divergence bounds are, :func:`divergence_bounds`)."""
+    return {"omega": tol.BLOW_UP_OMEGA_FACTOR * max(scales.omega, tol.DIVERGENCE_OMEGA_FLOOR_RAD_S),
+            "energy": tol.BLOW_UP_ENERGY_FACTOR * max(scales.ke, tol.DIVERGENCE_ENERGY_FLOOR_J)}
+
+
 def _first(mask: np.ndarray) -> int | None:
     idx = np.flatnonzero(mask)
     return int(idx[0]) if idx.size else None

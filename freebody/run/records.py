@@ -93,6 +93,9 @@ class RunResult:
     compile_time_s: float | None = None
     # what was simulated (freebody.run.experiment): compare matches runs of the same experiment only
     experiment: dict | None = None
+    # how far |w| and the kinetic energy grew beyond the truth's, and the largest rotation per step
+    # (freebody.run.metrics.GrowthStats); None for a run without samples (and in older results)
+    state_growth: dict | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "status", Status(self.status))  # ValueError for a status not in the set
