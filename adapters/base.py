@@ -21,6 +21,7 @@ import numpy as np
 
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.problem import Problem
+from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE, LOAD_SAMPLING_PER_STEP, LOAD_SAMPLINGS
 from .capture import capture_output
 from .loads import LoadSchedule, Segment
 
@@ -84,6 +85,12 @@ class Adapter(ABC):
       supported_versions : the engine versions this adapter can drive, a version specifier
         (``">=6.19"``), or None for any; a run on another version is ``skipped``, naming the range
         (see :func:`unsupported_version`).
+      load_sampling : where inside a step the engine evaluates the case's loads, one of
+        :data:`LOAD_SAMPLINGS`: :data:`LOAD_SAMPLING_PER_STAGE` (from the state of every stage or
+        substep its scheme evaluates) or :data:`LOAD_SAMPLING_PER_STEP` (the world wrench from the
+        state at the step's start, held over the step); ``load_sampling_note`` says how, in one
+        line (``freebody conventions``).  Identification compares a run with the engine maps'
+        variant of the same rule (:meth:`run_load_sampling` may refine it per case).
 
     An instance is one run: ``Adapter(problem, dt, integrator, precision)`` checks the integrator
     and precision (:class:`UnsupportedOption`), builds the load schedule ``self.loads`` and calls
@@ -105,6 +112,8 @@ class Adapter(ABC):
     compare_with: ClassVar[str | None] = None
     supported_versions: ClassVar[str | None] = None
     opt_in_integrators: ClassVar[tuple[str, ...]] = ()
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STEP
+    load_sampling_note: ClassVar[str] = ""
     # The largest angle (rad) one step turns the body through, when the engine caps it (Bullet's
     # ANGULAR_MOTION_THRESHOLD, pi/4); None: no cap.  A run whose |w| dt exceeds it is recorded
     # (results.json state_growth) and its findings name the cap.
@@ -152,6 +161,13 @@ class Adapter(ABC):
         """
 
     # --- optional, with defaults ---------------------------------------------------------------
+    @classmethod
+    def run_load_sampling(cls, problem: Problem) -> str | None:
+        """This engine's load sampling on ``problem`` (None when the case has no loads); default:
+        the declared ``load_sampling``.  An engine that samples some kinds of load per stage and
+        others per step returns the rule that holds for the case's loads as it applies them."""
+        return cls.load_sampling if problem.loads else None
+
     @classmethod
     def offered_integrators(cls) -> tuple[str, ...]:
         """Integrators available in the installed version (default first)."""

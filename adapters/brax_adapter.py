@@ -119,7 +119,7 @@ from ..reference_impl.problem import Body, InitialState, Load, Problem
 from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_from_matrix, quat_from_rotvec,
                                         quat_multiply)
 from .. import tolerances as tol
-from .base import Adapter, distribution_version
+from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP
 from .mjx_adapter import (_ROW, _SPARSITY_FIELDS, _compiled, _current_x64, _full_pattern, _load_rows,
                           _quat_matrix, _x64)
 from .mujoco_adapter import _alignfree_default, _fmt, _inertial_element, _trajectory
@@ -404,6 +404,9 @@ class BraxAdapter(Adapter):
     # relies on, and the load wrapper checks the pipeline.step source it wraps
     supported_versions: ClassVar[str | None] = ">=0.14"
     integrators: ClassVar[tuple[str, ...]] = tuple(PIPELINES)
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STEP
+    load_sampling_note: ClassVar[str] = ("world wrench from the step's start; one-stage pipelines, so the same as "
+                                         "per-stage")
     precisions: ClassVar[tuple[str, ...]] = PRECISIONS
     conventions: ClassVar[dict[str, str]] = {
         "model": "MJCF via brax.io.mjcf.loads (MuJoCo's compiler): one free body, fullinertia "

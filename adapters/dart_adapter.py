@@ -48,7 +48,7 @@ import numpy as np
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.rotations import matrix_from_quat, quat_from_rotvec
 from ..tolerances import DART_FRAME_PROBE_ATOL, DART_READBACK_RTOL
-from .base import Adapter, EngineDiverged
+from .base import Adapter, EngineDiverged, LOAD_SAMPLING_PER_STAGE
 from .capture import FdCapture
 
 _WORLD = dartpy.dynamics.Frame.World()
@@ -125,6 +125,10 @@ class DartAdapter(Adapter):
     # 6.16-6.18 lack World.getDeactivationOptions (every run failed with an AttributeError)
     supported_versions: ClassVar[str | None] = ">=6.19"
     integrators: ClassVar[tuple[str, ...]] = ("semi-implicit-euler",)
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STAGE
+    load_sampling_note: ClassVar[str] = ("DART turns body-frame couples and body-point forces itself "
+                                         "(addExtForce/addExtTorque, local flags) at its one stage, the step's "
+                                         "start")
     precisions: ClassVar[tuple[str, ...]] = ("float64",)
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "none: rotation matrices (Isometry3); FreeJoint positions are "

@@ -13,11 +13,19 @@ MuJoCo's conventions and what this adapter converts:
 - Inertia: ``<inertial fullinertia="Ixx Iyy Izz Ixy Ixz Iyz">``, the full tensor about the COM in
   the body frame; the compiler diagonalises it into ``body_inertia`` (principal moments) and
   ``body_iquat`` (principal frame in the body frame).
-- Loads: ``data.xfrc_applied[body]`` (6,) = [force (3,) N world, torque (3,) N m world about the
-  COM].  It persists until overwritten, so advance() writes it before every step: the
-  case's wrench for the step's active loads (arms from the state at the start of the step), or
-  zeros.  advance() rewrites it only where it can change (a new set of loads, or loads whose
-  wrench depends on the state) and clears it at the end.
+- Loads reach every stage of MuJoCo's step as the case defines them (``load_sampling``
+  per-stage): RK4 evaluates them at each of its four stages, the one-stage integrators at the
+  step's start.  ``data.xfrc_applied[body]`` (6,) = [force (3,) N world, torque (3,) N m world
+  about the COM] takes the forces and the world couples; ``data.qfrc_applied[3:6]`` (3,) N m takes
+  the body-frame couples as they are (a free joint's rotational dofs are body frame, so MuJoCo
+  turns them with every stage's orientation).  Both persist until overwritten: advance() writes
+  them at the start of each stretch of steps with one set of active loads, and clears them at the
+  end.  The torque of a force at a world point, (p - x) x f, or at a body point, (R b) x f, needs
+  each stage's pose: while such a load acts, a ``mjcb_control`` callback (called by MuJoCo in
+  every ``mj_forward``/``mj_forwardSkip``, so at every stage, with that stage's ``qpos``) writes
+  ``xfrc_applied`` from the stage's qpos.  The callback is process-global: it is installed only
+  around those stretches, acts only on this adapter's data (another data goes to the callback it
+  replaced) and the previous one is restored afterwards, even on an exception.
 - ``xpos``/``xquat`` are one step stale after ``mj_step``: the state is read from ``qpos``/``qvel``.
 - Instability: MuJoCo counts "Nan, Inf or huge value" warnings in ``data.warning`` and by default
   resets the body to ``qpos0`` at rest and carries on.  The adapter disables that auto-reset (so the
@@ -26,9 +34,9 @@ MuJoCo's conventions and what this adapter converts:
   counters too), then counts the warning, so the blow-up is still detected at its step (the
   counter moves from 0, and the replay of a chunk sees the time go back to 0); the last sample is
   then the reset state, the body at rest at ``qpos0``.
-- advance() is shaped for speed (see its docstring): stretches of steps whose loads do not depend
-  on the state run in C through ``mujoco.rollout`` (which stops at the first warning); the Python
-  loop used under state-dependent loads reads the counters once per chunk of steps and replays a
+- advance() is shaped for speed (see its docstring): stretches of steps without point forces
+  (no loads, forces at the COM, world or body couples) run in C through ``mujoco.rollout`` (which
+  stops at the first warning); the Python loop used under point forces reads the counters once per chunk of steps and replays a
   chunk whose counters moved, from a saved state, to find the step.  The trajectory, divergence
   time and counters are those of the step-by-step loop; only MuJoCo's printed log can differ (a
   chunk's steps after the bad one may print further warnings, e.g. BADQVEL, before being
@@ -42,6 +50,7 @@ sleeping and fluid forces are zero/off by default and build() checks that they a
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import Callable, ClassVar
 
 import mujoco
@@ -56,7 +65,7 @@ from ..reference_impl.conventions import (Trajectory, angular_velocity_body_from
                                           angular_velocity_world_from_body)
 from ..tolerances import MUJOCO_PRINCIPAL_AXES_ATOL, MUJOCO_TRIANGLE_ROUNDOFF
 from ..reference_impl.rotations import matrix_from_quat, quat_from_matrix
-from .base import Adapter, EngineDiverged
+from .base import LOAD_SAMPLING_PER_STAGE, Adapter, EngineDiverged
 from .loads import Segment
 
 # freebody's integrator name (MuJoCo's own spelling) -> the mjtIntegrator member, default first.
@@ -75,8 +84,8 @@ _WATCHED_WARNINGS: tuple[str, ...] = ("mjWARN_BADQACC", "mjWARN_BADQVEL", "mjWAR
 _BODY = 1  # body id of the free body (0 is the world)
 
 # advance() is shaped for speed (MuJoCo's step of a lone body is only ~2 us):
-# - a stretch of steps whose loads do not depend on the state (none, or a constant world wrench)
-#   and is at least this long goes through mujoco.rollout, which steps in C (~1.8 us/step against
+# - a stretch of steps without point forces (no loads, COM forces, world couples in
+#   xfrc_applied, body couples in qfrc_applied) and at least this long goes through mujoco.rollout, which steps in C (~1.8 us/step against
 #   ~2.4 for a Python loop over mj_step); a shorter stretch is not worth its set-up (~10 us);
 _ROLLOUT_MIN_STEPS = 64
 # - the Python loop (state-dependent loads) reads the warning counters once every this many
@@ -86,13 +95,15 @@ _CHECK_EVERY = 64
 
 _FULLPHYSICS = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
 # What a replayed chunk restores: the full physics state, the solver's warm start and the applied
-# wrench (everything mj_step reads that the loop changes).
+# loads (everything mj_step reads that the loop changes).
 _CHECKPOINT_SPEC = (_FULLPHYSICS | int(mujoco.mjtState.mjSTATE_WARMSTART)
-                    | int(mujoco.mjtState.mjSTATE_XFRC_APPLIED))
-# rollout's control_spec: with XFRC_APPLIED in it and no control array, rollout keeps the
-# xfrc_applied already in data (without it, rollout zeroes xfrc_applied); ctrl and qfrc_applied
-# are zeroed (unused here).
-_ROLLOUT_CONTROL_SPEC = int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
+                    | int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
+                    | int(mujoco.mjtState.mjSTATE_QFRC_APPLIED))
+# rollout's control_spec: with XFRC_APPLIED and QFRC_APPLIED in it and no control array, rollout
+# keeps the xfrc_applied and qfrc_applied already in data (without them, rollout zeroes them);
+# ctrl is zeroed (unused here).
+_ROLLOUT_CONTROL_SPEC = (int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
+                         | int(mujoco.mjtState.mjSTATE_QFRC_APPLIED))
 
 
 def _fmt(a) -> str:
@@ -107,6 +118,9 @@ class MujocoAdapter(Adapter):
     supported_versions: ClassVar[str | None] = ">=3.1"
     integrators: ClassVar[tuple[str, ...]] = tuple(_INTEGRATOR_ENUM)
     precisions: ClassVar[tuple[str, ...]] = ("float64",)
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STAGE
+    load_sampling_note: ClassVar[str] = ("body couples in qfrc_applied[3:6] (body frame), point forces' "
+                                         "torques written by mjcb_control at every RK4 stage")
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "(w, x, y, z), Hamilton, body -> world (free-joint qpos[3:7]); no reorder",
         "position": "qpos[0:3]: body origin in world = COM (inertial pos 0 0 0, alignfree=false)",
@@ -114,8 +128,8 @@ class MujocoAdapter(Adapter):
         "linear velocity frame": "world (qvel[0:3])",
         "inertia input": "full tensor via <inertial fullinertia='Ixx Iyy Izz Ixy Ixz Iyz'>, "
                          "diagonalised by the compiler (body_inertia + body_iquat)",
-        "external loads": "xfrc_applied = (force, torque about the COM), world; persists until "
-                          "cleared: written before every step",
+        "external loads": "xfrc_applied = (force, torque about the COM), world, and qfrc_applied[3:6] "
+                          "= body-frame couple; both persist until cleared",
         "velocity clamp": "none",
         "damping": "none by default (dof_damping 0, armature 0)",
         "sleeping": "off by default (mjENBL_SLEEP not set)",
@@ -220,6 +234,7 @@ class MujocoAdapter(Adapter):
         self._roller = None  # mujoco.rollout.Rollout, made on first use
         self._xfrc = data.xfrc_applied[_BODY]  # (6,) view: force (3,) N, torque (3,) N m, world
         self._torque = self._xfrc[3:6]         # (3,) view: torque about the COM, N m, world
+        self._body_couple = data.qfrc_applied[3:6]  # (3,) view: couple N m, BODY frame (free joint)
         self._x = data.qpos[0:3]               # (3,) view: COM position, m, world
         self._q = data.qpos[3:7]               # (4,) view: quaternion wxyz, body -> world
         self._arm = np.empty(3)                # scratch (3,)
@@ -227,13 +242,18 @@ class MujocoAdapter(Adapter):
 
     # --- loads -----------------------------------------------------------------------------------
     def _write_wrench(self, seg: Segment) -> None:
-        """xfrc_applied[body] = the segment's loads' world (force, torque about the COM) at the
-        current state (zeros when none is active): the sum over loads of Load.wrench, with the
-        state-dependent arms computed by MuJoCo's 3-vector helpers (numpy's cross on a (3,) array
-        costs ~10 us)."""
+        """The segment's loads at the current state (zeros when none is active):
+        qfrc_applied[3:6] = the body-frame couples, xfrc_applied[body] = the world (force, torque
+        about the COM) of the rest (:meth:`_write_point_torques`)."""
+        self._body_couple[:] = 0.0 if seg.body_torque is None else seg.body_torque
+        self._write_point_torques(seg)
+
+    def _write_point_torques(self, seg: Segment) -> None:
+        """xfrc_applied[body] = the forces and world couples plus the torques about the COM of the
+        point forces, (p - x) x f and (R b) x f, at the pose in qpos (a stage's, when called by
+        the control callback), computed by MuJoCo's 3-vector helpers (numpy's cross on a (3,)
+        array costs ~10 us)."""
         self._xfrc[:] = seg.constant
-        if not seg.state_dependent:
-            return
         tau, arm, term, x, q = self._torque, self._arm, self._term, self._x, self._q
         for point, f in seg.point_forces:          # (p - x) x f
             mujoco.mju_sub3(arm, point, x)
@@ -243,9 +263,29 @@ class MujocoAdapter(Adapter):
             mujoco.mju_rotVecQuat(arm, body_point, q)
             mujoco.mju_cross(term, arm, f)
             mujoco.mju_addTo3(tau, term)
-        if seg.body_torque is not None:             # R tau_b
-            mujoco.mju_rotVecQuat(term, seg.body_torque, q)
-            mujoco.mju_addTo3(tau, term)
+
+    @contextmanager
+    def _stage_loads(self, seg: Segment):
+        """While a point force acts: mjcb_control rewrites xfrc_applied from the qpos of every
+        stage MuJoCo evaluates (for this adapter's data only; another data is passed to the
+        callback this one replaced, which is restored on exit).  Nothing to do otherwise."""
+        if not _needs_stages(seg):
+            yield
+            return
+        data, write = self.data, self._write_point_torques
+        previous = mujoco.get_mjcb_control()
+
+        def control(m, d):
+            if d is data:
+                write(seg)
+            elif previous is not None:
+                previous(m, d)
+
+        mujoco.set_mjcb_control(control)
+        try:
+            yield
+        finally:
+            mujoco.set_mjcb_control(previous)
 
     def _warning_message(self) -> str | None:
         """The first watched warning whose counter moved since the last call (updating the
@@ -267,10 +307,11 @@ class MujocoAdapter(Adapter):
         Every step's raw qpos/qvel land in one preallocated (steps + 1, nstate) array of
         mjSTATE_FULLPHYSICS rows (time, qpos (7), qvel (6)); the frame conversion is done once for
         the whole run.  The steps go stretch by stretch, a stretch being steps with one set of
-        active loads: the wrench is written at its start and rewritten before every step only
-        when it depends on the state.  A stretch with a constant wrench (or none) of at least
-        _ROLLOUT_MIN_STEPS steps runs in C through mujoco.rollout; the others run in a Python
-        loop over mj_step that reads the warning counters every _CHECK_EVERY steps.  Both report
+        active loads: the loads are written at its start (:meth:`_write_wrench`) and, while a
+        point force acts, rewritten at every stage by the control callback (:meth:`_stage_loads`).
+        A stretch without point forces of at least _ROLLOUT_MIN_STEPS steps runs in C through
+        mujoco.rollout; the others run in a Python loop over mj_step that reads the warning
+        counters every _CHECK_EVERY steps.  Both report
         a watched warning at the step that raised it, as the base loop does (EngineDiverged with
         the trajectory up to and including that step's sample).
         """
@@ -281,11 +322,11 @@ class MujocoAdapter(Adapter):
         Q[0], V[0] = data.qpos, data.qvel
         for seg, ka, kb in self.loads.stretches(k0, k0 + steps):
             self._write_wrench(seg)
-            if (not seg.state_dependent and kb - ka >= _ROLLOUT_MIN_STEPS
-                    and _Rollout is not None):
+            if not _needs_stages(seg) and kb - ka >= _ROLLOUT_MIN_STEPS and _Rollout is not None:
                 bad = self._rollout(seg, S, ka - k0, kb - ka)
             else:
-                bad = self._loop(seg, Q, V, ka - k0, kb - ka)
+                with self._stage_loads(seg):
+                    bad = self._loop(seg, Q, V, ka - k0, kb - ka)
             if bad is not None:
                 i, reason = bad  # the warning was raised by the step ending at row i
                 self.k = k0 + i
@@ -293,22 +334,21 @@ class MujocoAdapter(Adapter):
                                      _trajectory(Q[:i + 1], V[:i + 1], self.dt, k0))
         self.k = k0 + steps
         self._xfrc[:] = 0.0
+        self._body_couple[:] = 0.0
         return _trajectory(Q, V, self.dt, k0)
 
     def _loop(self, seg: Segment, Q: np.ndarray, V: np.ndarray, i0: int, n: int):
         """n steps by a Python loop over mj_step into rows i0 + 1 .. i0 + n of Q (N, 7) and
-        V (N, 6) (raw qpos, qvel); the wrench for the first step is already written.  Returns
-        (row, reason) of the first step that raised a watched warning, else None."""
+        V (N, 6) (raw qpos, qvel); the loads are written (and, for point forces, the control
+        callback installed).  Returns (row, reason) of the first step that raised a watched
+        warning, else None."""
         model, data, step = self.model, self.data, mujoco.mj_step
         qpos, qvel = data.qpos, data.qvel
-        dependent, write = seg.state_dependent, self._write_wrench
         warnings, counts = self._warnings, self._warning_counts
         for c0 in range(i0, i0 + n, _CHECK_EVERY):
             c1 = min(c0 + _CHECK_EVERY, i0 + n)
             mujoco.mj_getState(model, data, self._checkpoint, _CHECKPOINT_SPEC)
             for i in range(c0, c1):
-                if dependent and i > i0:
-                    write(seg)
                 step(model, data)
                 Q[i + 1] = qpos
                 V[i + 1] = qvel
@@ -331,8 +371,6 @@ class MujocoAdapter(Adapter):
         after_chunk = [w.number for w in warnings]
         mujoco.mj_setState(model, data, self._checkpoint, _CHECKPOINT_SPEC)
         for i in range(c0, c1):
-            if seg.state_dependent and i > i0:
-                self._write_wrench(seg)
             t_before = data.time
             step(model, data)
             if not (np.array_equal(Q[i + 1], qpos, equal_nan=True)
@@ -409,6 +447,12 @@ class MujocoAdapter(Adapter):
             self._roller.close()
             self._roller = None
         self.model = self.data = None
+
+
+def _needs_stages(seg: Segment) -> bool:
+    """Whether the segment's loads need each stage's pose (a force at a world or body point):
+    the control callback then writes them; body couples go in qfrc_applied as they are."""
+    return bool(seg.point_forces or seg.body_point_forces)
 
 
 def _trajectory(Q: np.ndarray, V: np.ndarray, dt: float, k0: int = 0) -> Trajectory:

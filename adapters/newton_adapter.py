@@ -128,7 +128,7 @@ from ..reference_impl.problem import Body, InitialState, Load, Problem
 from ..reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply
 from ..tolerances import (NEWTON_READBACK_RTOL, NEWTON_TRAP_ENERGY_RTOL, NEWTON_TRAP_FREE_FLIGHT_RTOL,
                           NEWTON_TRAP_GRAVITY_RTOL, NEWTON_TRAP_PUSH_RTOL, NEWTON_TRAP_SPIN_RAD)
-from .base import Adapter, distribution_version
+from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP
 from .capture import capture_output
 from .loads import Segment
 
@@ -235,6 +235,9 @@ class NewtonAdapter(Adapter):
     # verified on 1.8.0 (Warp 1.19.0); build() checks every setting it relies on
     supported_versions: ClassVar[str | None] = ">=1.8"
     integrators: ClassVar[tuple[str, ...]] = (*_SOLVERS, *_MUJOCO_INTEGRATORS)
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STEP
+    load_sampling_note: ClassVar[str] = ("State.body_f world wrench from the step's start; one-stage solvers, but "
+                                         "mujoco-rk4 holds it over its four stages")
     opt_in_integrators: ClassVar[tuple[str, ...]] = ("kamino",)
     precisions: ClassVar[tuple[str, ...]] = ("float32",)
     conventions: ClassVar[dict[str, str]] = {

@@ -59,7 +59,7 @@ from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_c
                                         quat_from_matrix, quat_multiply, quat_normalize)
 from ..tolerances import (PYBULLET_EIGEN_ATOL_REL, PYBULLET_EIGEN_RTOL, PYBULLET_INITIAL_STATE_RTOL,
                           PYBULLET_PROBE_RTOL, PYBULLET_READBACK_RTOL)
-from .base import Adapter, distribution_version
+from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP
 from .loads import Segment
 
 # The multibody velocity clamp is lifted to this (rad/s on each world angular-velocity coordinate,
@@ -103,6 +103,9 @@ class PybulletAdapter(Adapter):
     import_name: ClassVar[str] = "pybullet"
     supported_versions: ClassVar[str | None] = ">=3.2.5"  # as the engines extra requires
     integrators: ClassVar[tuple[str, ...]] = ("multibody", "maximal")
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STEP
+    load_sampling_note: ClassVar[str] = ("world force/torque computed at the step's start "
+                                         "(applyExternalForce/Torque); one-stage schemes, so the same as per-stage")
     # both variants turn a body at most pi/4 a step (btTransformUtil::integrateTransform's
     # ANGULAR_MOTION_THRESHOLD; btMultiBody::integrateTransform applies the same), see "rotation cap"
     step_rotation_cap_rad: ClassVar[float | None] = math.pi / 4

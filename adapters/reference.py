@@ -25,7 +25,7 @@ from ..reference_impl import compiled as _c
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.integrators import (INTEGRATOR_ALIASES, INTEGRATORS, _initial, canonical_integrator,
                                            simulate)
-from .base import Adapter
+from .base import Adapter, LOAD_SAMPLING_PER_STAGE
 
 # euler-quat, lie-euler, rk4, implicit-midpoint, rkmk4: on (x, q, p, L) with I_b^-1
 _QUAT_SCHEMES = _c.QUAT_SCHEMES
@@ -106,6 +106,9 @@ class ReferenceAdapter(Adapter):
     integrators: ClassVar[tuple[str, ...]] = tuple(INTEGRATORS)
     # old name -> current name, accepted and not offered (``--integrator symplectic-euler``)
     integrator_aliases: ClassVar[dict[str, str]] = INTEGRATOR_ALIASES
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STAGE
+    load_sampling_note: ClassVar[str] = ("every stage of rk4 / rkmk4 evaluates the loads at its own state; one-"
+                                         "stage schemes at the step's start")
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "(w, x, y, z), Hamilton, body -> world (canonical)",
         "angular velocity frame": "world",
@@ -199,10 +202,12 @@ class ReferenceAdapter(Adapter):
         return out
 
 
-def map_orientations(problem, integrator: str, dt: float, steps: int, chunk_steps: int | None):
+def map_orientations(problem, integrator: str, dt: float, steps: int, chunk_steps: int | None,
+                     load_sampling: str = "per-stage"):
     """A reference map's orientations q (wxyz) in the pieces of ``Adapter.chunks(steps,
     chunk_steps)`` (any name ``integrators.simulate`` takes): stepped chunk by chunk where the
-    adapter continues the map, else integrated whole and cut.  Only q is kept between pieces
+    adapter continues the map, else integrated whole and cut (``load_sampling``: the variant of a
+    multi-stage engine map, see ``integrators.simulate``).  Only q is kept between pieces
     (scheme identification of a long run holds a few dozen of these streams at once)."""
     from ..reference_impl.truth import piece_bounds
 
@@ -213,6 +218,6 @@ def map_orientations(problem, integrator: str, dt: float, steps: int, chunk_step
         for k0, k1 in bounds:
             yield adapter.advance(k1 - k0).quaternion_wxyz[0 if k0 == 0 else 1:]
         return
-    q = simulate(problem, integrator, dt, steps).quaternion_wxyz
+    q = simulate(problem, integrator, dt, steps, load_sampling=load_sampling).quaternion_wxyz
     for k0, k1 in bounds:
         yield q[0 if k0 == 0 else k0 + 1:k1 + 1]

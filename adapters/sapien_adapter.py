@@ -96,7 +96,7 @@ from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_f
 from ..tolerances import (SAPIEN_PROBE_RTOL, SAPIEN_READBACK_RTOL, SAPIEN_TRAP_ENERGY_RTOL,
                           SAPIEN_TRAP_FULL_INERTIA_RAD, SAPIEN_TRAP_GRAVITY_RTOL, SAPIEN_TRAP_SLEEP_RTOL,
                           SAPIEN_TRAP_SPIN_RTOL)
-from .base import Adapter, distribution_version
+from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP
 from .loads import Segment
 
 # What the adapter sets for SAPIEN's traps (each read back in build(); the tests set them back to
@@ -170,6 +170,9 @@ class SapienAdapter(Adapter):
     # verified on 3.0.3 (PhysX 5.3.1); build() checks every setting and the pack() layout it needs
     supported_versions: ClassVar[str | None] = ">=3.0"
     integrators: ClassVar[tuple[str, ...]] = ("tgs", "pgs")
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STEP
+    load_sampling_note: ClassVar[str] = ("world force/torque computed at the step's start (add_force_torque); "
+                                         "PhysX's one-stage step, so the same as per-stage")
     precisions: ClassVar[tuple[str, ...]] = ("float32",)
     conventions: ClassVar[dict[str, str]] = {
         "quaternion order": "Pose.q is (w, x, y, z), Hamilton, body -> world: no reordering",

@@ -24,6 +24,7 @@ from .engine_maps import (BULLET_ANGULAR_MOTION_THRESHOLD, BULLET_SERIES_BELOW, 
 from .lie_integrators import RK4_B
 from .problem import Problem
 from .rotations import matrix_from_quat as _numpy_matrix_from_quat, quat_conjugate
+from .sampling import LOAD_SAMPLING_PER_STAGE, check_load_sampling
 
 __all__ = ["simulate_compiled_engine_map", "mujoco_rk4_step", "implicit_gyro_split_torque_step",
            "explicit_gyro_truncated_exp_step", "explicit_gyro_rescaled_momentum_step"]
@@ -93,18 +94,32 @@ def _rk4_combine(s1, s2, s3, s4):
 
 
 @jit
-def mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas, normalize_first):
+def _mj_stage_loads(k, x, q, h, c, v_prev, K_prev, loads, normalize_first, f, tau, per_stage):
+    """The wrench stage i of mujoco_rk4_step sees: the loads of step k at the stage's state
+    (x + h (c v_{i-1}), R(q_i)) when ``per_stage``, else (f, tau) as given (the step's start)."""
+    if not per_stage:
+        return f, tau
+    q_i = mujoco_quat_integrate(q, scale(c, K_prev), h, normalize_first)
+    return wrench(k, add(x, scale(h, scale(c, v_prev))), matrix_from_quat(q_i), loads)
+
+
+@jit
+def mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas, normalize_first,
+                    per_stage):
     """engine_maps.rkmk4_body_step (munthe_kaas, normalize_first) and rk4_body_exp_step (neither):
-    the wrench of step k at the start, then mujoco_rk4_step.  (The stage positions x_i of MuJoCo's
-    RK4 enter nothing but the final sum, through the stage velocities.)"""
+    the wrench of step k at the start (and, ``per_stage``, at every later stage's state), then
+    mujoco_rk4_step."""
     h = dt
     f, tau = wrench(k, x, matrix_from_quat(q), loads)
     a1, alpha1 = _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau)
-    v2, K2, a2, alpha2 = _mj_stage(q, v, w_b, h, 0.5, v, w_b, a1, alpha1, M, I_b, I_inv, g, f, tau,
+    f2, tau2 = _mj_stage_loads(k, x, q, h, 0.5, v, w_b, loads, normalize_first, f, tau, per_stage)
+    v2, K2, a2, alpha2 = _mj_stage(q, v, w_b, h, 0.5, v, w_b, a1, alpha1, M, I_b, I_inv, g, f2, tau2,
                                    munthe_kaas, normalize_first)
-    v3, K3, a3, alpha3 = _mj_stage(q, v, w_b, h, 0.5, v2, K2, a2, alpha2, M, I_b, I_inv, g, f, tau,
+    f3, tau3 = _mj_stage_loads(k, x, q, h, 0.5, v2, K2, loads, normalize_first, f, tau, per_stage)
+    v3, K3, a3, alpha3 = _mj_stage(q, v, w_b, h, 0.5, v2, K2, a2, alpha2, M, I_b, I_inv, g, f3, tau3,
                                    munthe_kaas, normalize_first)
-    v4, K4, a4, alpha4 = _mj_stage(q, v, w_b, h, 1.0, v3, K3, a3, alpha3, M, I_b, I_inv, g, f, tau,
+    f4, tau4 = _mj_stage_loads(k, x, q, h, 1.0, v3, K3, loads, normalize_first, f, tau, per_stage)
+    v4, K4, a4, alpha4 = _mj_stage(q, v, w_b, h, 1.0, v3, K3, a3, alpha3, M, I_b, I_inv, g, f4, tau4,
                                    munthe_kaas, normalize_first)
     v_new = add(v, scale(h, _rk4_combine(a1, a2, a3, a4)))
     w_new = add(w_b, scale(h, _rk4_combine(alpha1, alpha2, alpha3, alpha4)))
@@ -115,11 +130,11 @@ def mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas, n
 
 @jit
 def run_mujoco_rk4(x, q, v, w_b, dt, steps, M, I_b, I_inv, g, loads, munthe_kaas, normalize_first,
-                   out_x, out_q, out_v, out_w):
+                   per_stage, out_x, out_q, out_v, out_w):
     """Rows 1..steps of x, q, v, w = R(q) w_b (world)."""
     for k in range(steps):
         x, q, v, w_b = mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas,
-                                       normalize_first)
+                                       normalize_first, per_stage)
         _put(out_x, k + 1, x)
         _put(out_q, k + 1, q)
         _put(out_v, k + 1, v)
@@ -390,9 +405,9 @@ def drake_time_derivatives(y, M, I_b, g, f, tau):
 
 
 @jit
-def drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b):
+def drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b, per_stage):
     """engine_maps.drake_explicit_rk_step: A (s, s) the tableau's rows (zeros above the
-    diagonal), b (s,)."""
+    diagonal), b (s,); ``per_stage``: the wrench at every stage's state, else the step's start's."""
     h = dt
     f, tau = wrench(k, (y[4], y[5], y[6]), matrix_from_quat((y[0], y[1], y[2], y[3])), loads)
     s = len(b)
@@ -404,6 +419,9 @@ def drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b):
                 c = h * A[i, j]
                 for n in range(13):
                     y_i[n] = y_i[n] + c * K[j, n]
+        if per_stage and i > 0:
+            f, tau = wrench(k, (y_i[4], y_i[5], y_i[6]),
+                            matrix_from_quat((y_i[0], y_i[1], y_i[2], y_i[3])), loads)
         K[i] = drake_time_derivatives(y_i, M, I_b, g, f, tau)
     out = y.copy()
     for i in range(s):
@@ -433,13 +451,13 @@ def drake_semi_explicit_euler_step(k, y, dt, M, I_b, g, loads):
 
 
 @jit
-def run_drake(y, dt, steps, M, I_b, g, loads, A, b, semi, out_x, out_q, out_v, out_w):
+def run_drake(y, dt, steps, M, I_b, g, loads, A, b, semi, per_stage, out_x, out_q, out_v, out_w):
     """Rows 1..steps of x, q / |q|, v, w (world) from Drake's state y = [q, x, w, v]."""
     for k in range(steps):
         if semi:
             y = drake_semi_explicit_euler_step(k, y, dt, M, I_b, g, loads)
         else:
-            y = drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b)
+            y = drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b, per_stage)
         n = math.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3])
         for i in range(4):
             out_q[k + 1, i] = y[i] / n
@@ -649,14 +667,17 @@ __all__ += ["BRAX_MAPS", "brax_integrate_free_rotation", "explicit_gyro_regulari
 
 # --- from a Problem --------------------------------------------------------------------------------
 
-def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: int) -> Trajectory:
-    """``engine_maps.simulate_engine_map(problem, name, dt, steps, compiled=False)`` by the compiled
-    maps: the same Trajectory to rounding.  The initial state is formed in numpy as there."""
+def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: int,
+                                 load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
+    """``engine_maps.simulate_engine_map(problem, name, dt, steps, compiled=False, load_sampling)``
+    by the compiled maps: the same Trajectory to rounding.  The initial state is formed in numpy
+    as there."""
     from .engine_maps import _start, dart_exp_map_rot as _numpy_exp_map_rot
     from .rotations import quat_from_rotvec as _numpy_quat_from_rotvec, quat_multiply as _numpy_qmul
 
     if name not in ENGINE_MAPS:
         raise KeyError(name)
+    per_stage = check_load_sampling(load_sampling) == LOAD_SAMPLING_PER_STAGE
     M, I_b, I_inv, x, q, v, w, g = _start(problem)
     loads = loads_of(problem, dt)
     dt, steps = float(dt), int(steps)  # one compiled signature whatever the caller passes
@@ -666,7 +687,7 @@ def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: 
         w_b = _numpy_matrix_from_quat(q).T @ w
         rkmk = name == "rkmk4-body"
         run_mujoco_rk4(vec(x), vec(q), vec(v), vec(w_b), dt, steps, M, mat(I_b), mat(I_inv), vec(g), loads,
-                       rkmk, rkmk, out.position, out.quaternion_wxyz, out.linear_velocity,
+                       rkmk, rkmk, per_stage, out.position, out.quaternion_wxyz, out.linear_velocity,
                        out.angular_velocity)
     elif name == "explicit-gyro-rescaled-momentum":
         moments, V, q_V = physx_principal_frame(I_b)
@@ -676,7 +697,7 @@ def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: 
     elif name == DRAKE_SEMI_IMPLICIT or name in DRAKE_TABLEAUS:
         A, b = drake_tableau_arrays(name)
         run_drake(np.concatenate([q, x, w, v]), dt, steps, M, mat(I_b), vec(g), loads, A, b,
-                  name == DRAKE_SEMI_IMPLICIT, out.position, out.quaternion_wxyz, out.linear_velocity,
+                  name == DRAKE_SEMI_IMPLICIT, per_stage, out.position, out.quaternion_wxyz, out.linear_velocity,
                   out.angular_velocity)
     elif name in _NEWTON_KIND:
         run_newton(_NEWTON_KIND[name], vec(x), vec(q), vec(v), vec(w), dt, steps, M, mat(I_b), mat(I_inv),

@@ -70,9 +70,11 @@ from .dynamics import Wrench, wrench_function
 from .integrators import Integrator, semi_implicit_velocities
 from .lie_integrators import RK4_B, RK4_C  # the classic tableau: MuJoCo's RK4_A subdiagonal and RK4_B
 from .problem import Problem
+from .sampling import LOAD_SAMPLING_PER_STAGE, LOAD_SAMPLING_PER_STEP, check_load_sampling
 from .rotations import matrix_from_quat, quat_conjugate, quat_from_matrix, quat_from_rotvec, quat_multiply, skew
 
-__all__ = ["ENGINE_MAPS", "simulate_engine_map", "rkmk4_body_step", "rk4_body_exp_step",
+__all__ = ["ENGINE_MAPS", "MULTI_STAGE_MAPS", "LOAD_SAMPLING_PER_STAGE", "LOAD_SAMPLING_PER_STEP",
+           "simulate_engine_map", "rkmk4_body_step", "rk4_body_exp_step",
            "implicit_gyro_split_torque_step", "explicit_gyro_truncated_exp_step", "dexpinv",
            "mujoco_quat_integrate", "bullet_integrate_rotation", "bullet_matrix_from_quat",
            "bullet_quat_from_matrix", "dart_exp_map_rot", "dart_log_map",
@@ -152,12 +154,16 @@ def _mj_acceleration(q, w_b, M: float, I_b, I_inv, g, f, tau):
 
 
 def mujoco_rk4_step(x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, f, tau,
-                    munthe_kaas: bool, normalize_first: bool):
+                    munthe_kaas: bool, normalize_first: bool, stage_wrench=None):
     """One ``mj_RungeKutta(m, d, 4)`` (MuJoCo ``engine_forward.c``) of a lone free body.
 
     State in MuJoCo's free-joint variables: x (3,) m world (qpos[0:3]), q (4,) wxyz body -> world
     (qpos[3:7]), v (3,) m/s world (qvel[0:3]), w_b (3,) rad/s BODY frame (qvel[3:6]).  f (3,) N and
-    tau (3,) N m world: the wrench of the step (``xfrc_applied``), the same at every stage.
+    tau (3,) N m world: the wrench at the step's start.  ``stage_wrench``: None (per-step loads,
+    ``xfrc_applied`` written before the step: the same f, tau at every stage), or a function
+    (x_i, R_i) -> (f, tau) evaluated at each later stage's state (per-stage loads: the adapter's
+    ``mjcb_control`` or ``qfrc_applied``), with the stage position x_i = x + h (c_i v_{i-1}) as
+    ``mj_integratePos`` forms it.
 
     Stage 1 is the start; stage i = 2, 3, 4 starts from the start moved by h c_i (c = 1/2, 1/2, 1)
     times stage i-1's slopes (mj_integratePos for x and q, qvel0 + h c_i qacc for the velocities):
@@ -171,9 +177,11 @@ def mujoco_rk4_step(x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, f, tau,
     h = dt
     a1, alpha1 = _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau)
     vs, Ks, accs, alphas = [v], [w_b], [a1], [alpha1]  # slopes of the stages so far
-    for c in RK4_C:  # (the stage positions x_i enter nothing: the loads are fixed over the step)
+    for c in RK4_C:
         dK = c * Ks[-1]
         q_i = mujoco_quat_integrate(q, dK, h, normalize_first)
+        if stage_wrench is not None:  # the loads at the stage's state (x_i, R(q_i))
+            f, tau = stage_wrench(x + h * (c * vs[-1]), matrix_from_quat(q_i))
         v_i = v + h * (c * accs[-1])
         w_i = w_b + h * (c * alphas[-1])
         a_i, alpha_i = _mj_acceleration(q_i, w_i, M, I_b, I_inv, g, f, tau)
@@ -190,7 +198,14 @@ def mujoco_rk4_step(x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, f, tau,
     return x_new, q_new, v_new, w_new
 
 
-def rkmk4_body_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, wrench: Wrench):
+def _stage_wrench(k: int, wrench: Wrench, per_stage: bool):
+    """For a multi-stage map: the function (x_i, R_i) -> wrench of step k at a stage's state, or
+    None when the loads are sampled per step (held at the step's start's value)."""
+    return (lambda x_i, R_i: wrench(k, x_i, R_i)) if per_stage else None
+
+
+def rkmk4_body_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, wrench: Wrench,
+                    per_stage: bool = True):
     """``rkmk4-body``: MuJoCo 4.x ``RK4`` (verified on MuJoCo 4.0.0).
 
     Classic RK4 on (x, v, w_b) and, for the orientation, the Runge-Kutta-Munthe-Kaas method (Iserles,
@@ -200,14 +215,16 @@ def rkmk4_body_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, wr
     (``engine_forward.c``), MuJoCo changelog 4.0.0 item 5; see :func:`mujoco_rk4_step`.
 
     x (3,) m world, q (4,) wxyz body -> world, v (3,) m/s world, w_b (3,) rad/s body frame;
-    I_b, I_inv (3, 3) body frame; g (3,) m/s^2; wrench(k, x, R) of the state at the step's start.
+    I_b, I_inv (3, 3) body frame; g (3,) m/s^2; wrench(k, x, R) of step k, evaluated at every
+    stage's state (``per_stage``, how the MuJoCo adapter applies loads) or at the step's start only.
     """
     f, tau = wrench(k, x, matrix_from_quat(q))
     return mujoco_rk4_step(x, q, v, w_b, dt, M, I_b, I_inv, g, f, tau, munthe_kaas=True,
-                           normalize_first=True)
+                           normalize_first=True, stage_wrench=_stage_wrench(k, wrench, per_stage))
 
 
-def rk4_body_exp_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, wrench: Wrench):
+def rk4_body_exp_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, wrench: Wrench,
+                      per_stage: bool = True):
     """``rk4-body-exp``: MuJoCo 3.x ``RK4`` and MJX ``RK4`` (verified on MuJoCo 3.1.6 and MJX 3.17
     float64).
 
@@ -221,7 +238,7 @@ def rk4_body_exp_step(k: int, x, q, v, w_b, dt: float, M: float, I_b, I_inv, g, 
     """
     f, tau = wrench(k, x, matrix_from_quat(q))
     return mujoco_rk4_step(x, q, v, w_b, dt, M, I_b, I_inv, g, f, tau, munthe_kaas=False,
-                           normalize_first=False)
+                           normalize_first=False, stage_wrench=_stage_wrench(k, wrench, per_stage))
 
 
 # --- PyBullet maximal coordinates (btRigidBody) --------------------------------------------------
@@ -572,7 +589,7 @@ def drake_time_derivatives(y: np.ndarray, M: float, I_b: np.ndarray, g: np.ndarr
 
 
 def drake_explicit_rk_step(k: int, y: np.ndarray, dt: float, M: float, I_b, g, wrench: Wrench,
-                           tableau) -> np.ndarray:
+                           tableau, per_stage: bool = True) -> np.ndarray:
     """``quat-rate-euler``, ``-rk2``, ``-rk3``, ``-bs3``, ``-rk5``: one fixed step of Drake's explicit
     Runge-Kutta integrators on a continuous MultibodyPlant (time_step 0), verified on Drake 1.51.1.
 
@@ -581,8 +598,10 @@ def drake_explicit_rk_step(k: int, y: np.ndarray, dt: float, M: float, I_b, g, w
     the step y + h sum_i b_i K_i.  The quaternion is integrated as a vector in R^4 through its rate
     1/2 (0, w) q and never renormalised (Drake's integrators are generic ODE solvers): the stored
     norm drifts (explicit Euler: by sqrt(1 + h^2 |w|^2 / 4) a step) while the rotation is that of
-    q / |q|.  The wrench of step k is evaluated once, at the step's start (the adapter fixes the
-    applied-force input port before each step), and is the same for every stage.  Sources:
+    q / |q|.  The wrench of step k is evaluated at every stage's state (``per_stage``: arms and
+    R from that stage's x_i and q_i / |q_i|, a system whose output is computed from the current
+    pose), or once, at the step's start, and held for every stage (the applied-force input port
+    fixed before each step).  Sources:
     ``explicit_euler_integrator.h``, ``runge_kutta2_integrator.h``, ``runge_kutta3_integrator.h``,
     ``bogacki_shampine3_integrator.h``, ``runge_kutta5_integrator.h`` (``systems/analysis``).
     """
@@ -595,6 +614,8 @@ def drake_explicit_rk_step(k: int, y: np.ndarray, dt: float, M: float, I_b, g, w
         for j, a in enumerate(A[i]):
             if a != 0.0:
                 y_i = y_i + (h * a) * K[j]
+        if per_stage and i > 0:
+            f, tau = wrench(k, y_i[4:7], matrix_from_quat(y_i[0:4]))
         K.append(drake_time_derivatives(y_i, M, I_b, g, f, tau))
     out = y
     for b_i, K_i in zip(b, K):
@@ -865,7 +886,8 @@ def _start(problem: Problem):
             np.array(problem.gravity, float))
 
 
-def _simulate_mujoco_rk4(problem: Problem, dt: float, steps: int, munthe_kaas: bool) -> Trajectory:
+def _simulate_mujoco_rk4(problem: Problem, dt: float, steps: int, munthe_kaas: bool,
+                         per_stage: bool = True) -> Trajectory:
     M, I_b, I_inv, x, q, v, w, g = _start(problem)
     wrench = wrench_function(problem, dt)
     step = rkmk4_body_step if munthe_kaas else rk4_body_exp_step
@@ -873,7 +895,7 @@ def _simulate_mujoco_rk4(problem: Problem, dt: float, steps: int, munthe_kaas: b
     out = Trajectory.empty(steps + 1)
     out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
     for k in range(steps):
-        x, q, v, w_b = step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, wrench)
+        x, q, v, w_b = step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, wrench, per_stage)
         out.position[k + 1], out.quaternion_wxyz[k + 1], out.linear_velocity[k + 1] = x, q, v
         out.angular_velocity[k + 1] = matrix_from_quat(q) @ w_b
     out.t[:] = np.arange(steps + 1) * dt
@@ -930,7 +952,8 @@ def _simulate_physx(problem: Problem, dt: float, steps: int) -> Trajectory:
     return out
 
 
-def _simulate_drake(problem: Problem, dt: float, steps: int, name: str) -> Trajectory:
+def _simulate_drake(problem: Problem, dt: float, steps: int, name: str,
+                    per_stage: bool = True) -> Trajectory:
     """A Drake map on Drake's state y = [q, x, w, v] from the case's state as written (q not
     renormalised); the trajectory holds q / |q| as the adapter reads it (the stored norm drifts)."""
     M, I_b, _, x, q, v, w, g = _start(problem)
@@ -942,7 +965,7 @@ def _simulate_drake(problem: Problem, dt: float, steps: int, name: str) -> Traje
         if name == DRAKE_SEMI_IMPLICIT:
             y = drake_semi_explicit_euler_step(k, y, dt, M, I_b, g, wrench)
         else:
-            y = drake_explicit_rk_step(k, y, dt, M, I_b, g, wrench, DRAKE_TABLEAUS[name])
+            y = drake_explicit_rk_step(k, y, dt, M, I_b, g, wrench, DRAKE_TABLEAUS[name], per_stage)
         out.quaternion_wxyz[k + 1] = y[0:4] / np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2] + y[3] * y[3])
         out.position[k + 1], out.angular_velocity[k + 1], out.linear_velocity[k + 1] = y[4:7], y[7:10], y[10:13]
     out.t[:] = np.arange(steps + 1) * dt
@@ -994,12 +1017,13 @@ def _simulate_brax(problem: Problem, dt: float, steps: int, name: str) -> Trajec
 
 
 # Compiled kernel of each map (compiled_engine_maps.simulate_compiled_engine_map's switch)
+# (the multi-stage maps, MULTI_STAGE_MAPS, take a 4th argument: per_stage, default True)
 _NUMPY_RUNS = {
-    "rkmk4-body": lambda pb, dt, n: _simulate_mujoco_rk4(pb, dt, n, munthe_kaas=True),
-    "rk4-body-exp": lambda pb, dt, n: _simulate_mujoco_rk4(pb, dt, n, munthe_kaas=False),
+    "rkmk4-body": lambda pb, dt, n, per_stage=True: _simulate_mujoco_rk4(pb, dt, n, True, per_stage),
+    "rk4-body-exp": lambda pb, dt, n, per_stage=True: _simulate_mujoco_rk4(pb, dt, n, False, per_stage),
     "implicit-gyro-split-torque": _simulate_bullet_maximal,
     "explicit-gyro-truncated-exp": _simulate_dart,
-    **{name: (lambda pb, dt, n, name=name: _simulate_drake(pb, dt, n, name))
+    **{name: (lambda pb, dt, n, per_stage=True, name=name: _simulate_drake(pb, dt, n, name, per_stage))
        for name in (DRAKE_SEMI_IMPLICIT, *DRAKE_TABLEAUS)},
     "explicit-gyro-rescaled-momentum": _simulate_physx,
     **{name: (lambda pb, dt, n, name=name: _simulate_newton(pb, dt, n, name)) for name in NEWTON_STEPS},
@@ -1069,14 +1093,42 @@ ENGINE_MAPS: dict[str, Integrator] = {
 }
 
 
+# The maps with more than one stage per step, whose loads are sampled at every stage
+# (LOAD_SAMPLING_PER_STAGE) or held at the step's start's value (LOAD_SAMPLING_PER_STEP); every
+# other map evaluates the loads once, at the step's start, under either rule.
+MULTI_STAGE_MAPS = ("rkmk4-body", "rk4-body-exp", "quat-rate-rk2", "quat-rate-rk3", "quat-rate-bs3",
+                    "quat-rate-rk5")
+
+
 def simulate_engine_map(problem: Problem, name: str, dt: float, steps: int,
-                        compiled: bool = True) -> Trajectory:
+                        compiled: bool = True, load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
     """Run the engine-equivalent map ``name`` (``ENGINE_MAPS``) for ``steps`` steps of ``dt``:
     compiled (:mod:`compiled_engine_maps`, under a microsecond a step) or, with ``compiled=False``,
-    the numpy loops of this module.  Blow-ups become inf/NaN samples, never exceptions."""
-    entry = ENGINE_MAPS[name]
+    the numpy loops of this module.  ``load_sampling`` (:mod:`sampling`): where a multi-stage map
+    evaluates the loads (every stage, or the step's start held over the step).  Blow-ups become
+    inf/NaN samples, never exceptions."""
+    ENGINE_MAPS[name]  # KeyError for an unknown name
+    per_stage = check_load_sampling(load_sampling) == LOAD_SAMPLING_PER_STAGE
     if compiled:
         from .compiled_engine_maps import simulate_compiled_engine_map
-        return simulate_compiled_engine_map(problem, name, dt, steps)
+        return simulate_compiled_engine_map(problem, name, dt, steps, load_sampling)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        return entry.simulate(problem, dt, steps)
+        if name in MULTI_STAGE_MAPS:
+            return _NUMPY_RUNS[name](problem, dt, steps, per_stage)
+        return _NUMPY_RUNS[name](problem, dt, steps)
+
+
+def map_load_sampling(problem: Problem, name: str, load_sampling: str) -> str:
+    """The variant of map ``name`` that a run under ``load_sampling`` is compared with, in its
+    canonical spelling: ``load_sampling`` for a multi-stage engine map (:data:`MULTI_STAGE_MAPS`) on
+    a case with a load whose wrench depends on the state (a body couple, a force at a point), else
+    ``per-stage`` (both rules give the same trajectory there: one name, one cached run)."""
+    check_load_sampling(load_sampling)
+    if name in MULTI_STAGE_MAPS and any(
+            ld.point is not None or ld.body_point is not None or np.any(ld.body_torque != 0.0)
+            for ld in problem.loads):
+        return load_sampling
+    return LOAD_SAMPLING_PER_STAGE
+
+
+__all__ += ["map_load_sampling"]

@@ -302,7 +302,8 @@ def canonical_integrator(name: str) -> str:
     return INTEGRATOR_ALIASES.get(name, name)
 
 
-def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled: bool = True) -> Trajectory:
+def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled: bool = True,
+             load_sampling: str = "per-stage") -> Trajectory:
     """Integrate ``problem`` for ``steps`` steps of ``dt`` with the named integrator.
 
     compiled : True (default): the compiled scalar maps of :mod:`compiled` (0.1-1.1 us a step);
@@ -311,13 +312,15 @@ def simulate(problem: Problem, integrator: str, dt: float, steps: int, compiled:
 
     A blow-up is not an error here: its samples become inf/NaN and the harness calls it diverged.
     ``integrator`` may also name an engine-equivalent map (:data:`engine_maps.ENGINE_MAPS`) or be an
-    old name (:data:`INTEGRATOR_ALIASES`).
+    old name (:data:`INTEGRATOR_ALIASES`).  load_sampling (:mod:`sampling`, "per-stage" or
+    "per-step"): where an engine map of several stages evaluates the loads (the run's engine's
+    declared rule); the reference integrators ignore it (loads at every stage, always).
     """
     integrator = canonical_integrator(integrator)
     if integrator not in INTEGRATORS:
         from .engine_maps import ENGINE_MAPS, simulate_engine_map  # imports this module
         if integrator in ENGINE_MAPS:
-            return simulate_engine_map(problem, integrator, dt, steps, compiled)
+            return simulate_engine_map(problem, integrator, dt, steps, compiled, load_sampling)
     entry = INTEGRATORS[integrator]  # KeyError for an unknown name, either way
     if compiled:
         from .compiled import simulate_compiled  # numba loads on first use, not on import

@@ -13,7 +13,8 @@ from .. import tolerances as tol
 from ..adapters.base import EngineDiverged, load_adapter
 from ..reference_impl import integrators as _maps
 from ..reference_impl.conventions import Trajectory
-from ..reference_impl.engine_maps import ENGINE_MAPS
+from ..reference_impl.engine_maps import ENGINE_MAPS, map_load_sampling
+from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
 from ..reference_impl.integrators import INTEGRATORS
 from ..reference_impl.integrators import simulate as reference_simulate
 from ..reference_impl.problem import InitialState, Problem
@@ -23,7 +24,8 @@ from ..results.document import prefix_end, select_saved
 from .metrics import (DIVERGENCE_KINDS, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, ROTATION_ORTHONORMALITY_ERROR_MAX,
                       STAT_ARRAYS, Scales, Series, SeriesStats, divergence_bounds, divergence_decision,
                       divergence_firsts, series, truth_scales, GrowthStats)
-from .records import RunOutput, RunResult, RunSpec, Simulated, Status, _clean, _describe, _identity, _no_trajectory
+from .records import (RunOutput, RunResult, RunSpec, Simulated, Status, _clean, _describe, _identity, _no_trajectory,
+                      identification_sampling)
 
 # The engines' maps: what an engine integrator plausibly implements (rk4 only for an RK4 of its
 # own); the self-checks bound an engine by these (:func:`engine_schemes`).
@@ -60,33 +62,42 @@ class TruthCache:
                 adapter.close()
         return self._cache[key]
 
-    def reference(self, problem: Problem, integrator: str, dt: float, steps: int) -> Trajectory:
-        key = (id(problem), problem.name, dt, steps, integrator)
+    def reference(self, problem: Problem, integrator: str, dt: float, steps: int,
+                  load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
+        load_sampling = map_load_sampling(problem, integrator, load_sampling)
+        key = (id(problem), problem.name, dt, steps, integrator, load_sampling)
         if key not in self._cache:
-            self._cache[key] = reference_simulate(problem, integrator, dt, steps)
+            self._cache[key] = reference_simulate(problem, integrator, dt, steps, load_sampling=load_sampling)
         return self._cache[key]
 
-    def orientation(self, problem: Problem, integrator: str, dt: float, steps: int) -> np.ndarray:
+    def orientation(self, problem: Problem, integrator: str, dt: float, steps: int,
+                    load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
         """The reference map's orientations q (steps + 1, 4), wxyz: all that identification
-        compares (the rest of the map's trajectory is not kept)."""
-        key = (id(problem), problem.name, dt, steps, integrator)
+        compares (the rest of the map's trajectory is not kept); ``load_sampling``: the variant of
+        a multi-stage engine map (the run's engine's rule, :func:`map_load_sampling`)."""
+        load_sampling = map_load_sampling(problem, integrator, load_sampling)
+        key = (id(problem), problem.name, dt, steps, integrator, load_sampling)
         if key in self._cache:  # the whole map is here already
             return self._cache[key].quaternion_wxyz
         if key + ("q",) not in self._cache:
-            self._cache[key + ("q",)] = self._simulate_map(problem, integrator, dt, steps).quaternion_wxyz
+            self._cache[key + ("q",)] = self._simulate_map(problem, integrator, dt, steps,
+                                                           load_sampling).quaternion_wxyz
         return self._cache[key + ("q",)]
 
     def roundoff(self, problem: Problem, integrator: str, dt: float, steps: int,
-                 precision: str = "float64") -> np.ndarray:
+                 precision: str = "float64", load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
         """The case's round-off amplification for this map: :func:`roundoff_spread` (N,) rad."""
-        key = (id(problem), problem.name, dt, steps, integrator, "roundoff", precision)
+        load_sampling = map_load_sampling(problem, integrator, load_sampling)
+        key = (id(problem), problem.name, dt, steps, integrator, "roundoff", precision, load_sampling)
         if key not in self._cache:
-            q = self.orientation(problem, integrator, dt, steps)
-            self._cache[key] = roundoff_spread(problem, integrator, dt, steps, precision, q)
+            q = self.orientation(problem, integrator, dt, steps, load_sampling)
+            self._cache[key] = roundoff_spread(problem, integrator, dt, steps, precision, q,
+                                               load_sampling=load_sampling)
         return self._cache[key]
 
-    def _simulate_map(self, problem: Problem, integrator: str, dt: float, steps: int) -> Trajectory:
-        return reference_simulate(problem, integrator, dt, steps)
+    def _simulate_map(self, problem: Problem, integrator: str, dt: float, steps: int,
+                      load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
+        return reference_simulate(problem, integrator, dt, steps, load_sampling=load_sampling)
 
 
 def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bool = True,
@@ -274,9 +285,11 @@ class RunJudge:
 def cached_map_pieces(spec: RunSpec, cache: TruthCache) -> Callable[[str], Iterator]:
     """The reference maps of a run judged whole: each map's q and round-off spread, whole, from
     the cache (computed once per (case, dt, steps) group)."""
+    sampling = identification_sampling(spec)
+
     def pieces(name: str):
-        yield (cache.orientation(spec.problem, name, spec.dt, spec.steps),
-               cache.roundoff(spec.problem, name, spec.dt, spec.steps, spec.precision))
+        yield (cache.orientation(spec.problem, name, spec.dt, spec.steps, sampling),
+               cache.roundoff(spec.problem, name, spec.dt, spec.steps, spec.precision, sampling))
     return pieces
 
 
@@ -287,11 +300,12 @@ def stepped_map_pieces(spec: RunSpec, chunk_steps: int) -> Callable[[str], Itera
     from ..adapters.reference import map_orientations
 
     pb, dt, steps = spec.problem, spec.dt, spec.steps
+    sampling = identification_sampling(spec)
 
     def pieces(name: str):
         starts = [perturbed_start(pb, dt, spec.precision, signs) for signs in ULP_SIGN_PATTERNS]
-        others = [map_orientations(pb_u, name, dt_u, steps, chunk_steps) for pb_u, dt_u in starts]
-        for q in map_orientations(pb, name, dt, steps, chunk_steps):
+        others = [map_orientations(pb_u, name, dt_u, steps, chunk_steps, sampling) for pb_u, dt_u in starts]
+        for q in map_orientations(pb, name, dt, steps, chunk_steps, sampling):
             spread = np.zeros(len(q))
             for other in others:
                 spread = _spread_update(spread, q, next(other))
@@ -434,7 +448,7 @@ def perturbed_start(pb: Problem, dt: float, precision: str = "float64",
 
 
 def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precision: str,
-                    q_ref: np.ndarray) -> np.ndarray:
+                    q_ref: np.ndarray, load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
     """(steps + 1,) rad: the orientation of the map ``integrator`` (its run's q_ref (steps + 1, 4))
     against the same map from each of the :func:`perturbed_start` of :data:`ULP_SIGN_PATTERNS`, the
     largest sample by sample.  A sample where either is not finite counts as pi (the orientation is
@@ -442,7 +456,8 @@ def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precisi
     spread = np.zeros(len(q_ref))
     for signs in ULP_SIGN_PATTERNS:
         pb_u, dt_u = perturbed_start(pb, dt, precision, signs)
-        other = _maps.simulate(pb_u, integrator, dt_u, steps)  # not reference_simulate: no map the cache holds
+        other = _maps.simulate(pb_u, integrator, dt_u, steps,  # not reference_simulate: no map the cache holds
+                               load_sampling=load_sampling)
         spread = _spread_update(spread, q_ref, other.quaternion_wxyz)
     return spread
 

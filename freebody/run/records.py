@@ -23,6 +23,7 @@ from ..adapters.capture import cap_line
 from ..numbers import finite_or_none
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.problem import Problem
+from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
 from ..reference_impl.truth import truth_kind
 from .experiment import experiment
 from .metrics import Series
@@ -96,6 +97,10 @@ class RunResult:
     # how far |w| and the kinetic energy grew beyond the truth's, and the largest rotation per step
     # (freebody.run.metrics.GrowthStats); None for a run without samples (and in older results)
     state_growth: dict | None = None
+    # where inside a step the engine evaluated the case's loads (reference_impl.sampling:
+    # "per-stage" or "per-step", the adapter's declared rule; Adapter.run_load_sampling); None when
+    # the case has no loads or the engine was not built.  Optional: older results lack it.
+    load_sampling: str | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "status", Status(self.status))  # ValueError for a status not in the set
@@ -145,7 +150,27 @@ def _identity(spec: RunSpec, settings: dict | None = None) -> dict:
     the adapter's, None when the engine was not built)."""
     return dict(case=spec.problem.name, engine=spec.engine, integrator=spec.integrator,
                 precision=spec.precision, dt=spec.dt, steps=spec.steps, truth=truth_kind(spec.problem),
-                experiment=experiment(spec.problem, spec.dt, spec.steps, settings))
+                experiment=experiment(spec.problem, spec.dt, spec.steps, settings),
+                load_sampling=run_load_sampling(spec) if settings is not None else None)
+
+
+def run_load_sampling(spec: RunSpec) -> str | None:
+    """The run's load sampling as its engine's adapter declares it for this case
+    (``Adapter.run_load_sampling``), or None: the case has no loads, or the adapter cannot be
+    loaded."""
+    if not spec.problem.loads:
+        return None
+    from ..adapters.base import load_adapter  # the engine's module is imported already (it ran)
+    try:
+        return load_adapter(spec.engine).run_load_sampling(spec.problem)
+    except Exception:
+        return None
+
+
+def identification_sampling(spec: RunSpec) -> str:
+    """The variant of the multi-stage engine maps a run is compared with: its engine's load
+    sampling (:func:`run_load_sampling`), per-stage when there is none."""
+    return run_load_sampling(spec) or LOAD_SAMPLING_PER_STAGE
 
 
 def _clean(metrics: dict) -> dict:
