@@ -334,10 +334,13 @@ INERTIA_MESH_FIXED_BYTES = 256 * MIB
 # within M's round-off level on the case of M's own:
 #     angle(q_run(t_k), q_M(t_k)) <= max(SCHEME_ROUNDOFF_FACTOR * max_{j<=k} s_M(t_j), SCHEME_ROUNDOFF_FLOOR_RAD)
 # s_M is how the case amplifies round-off: the largest orientation difference between M's run and
-# M's runs from three starts one ulp away (in the run's precision: every component of the initial
-# q, w, x, v and of I_body moved by one ulp of its vector's largest entry, q renormalised, dt moved
-# by one ulp; three sign patterns, since at a given time a flip amplifies some directions far more
-# than others).  A steady spin keeps it near 1e-15; a flip (dzhanibekov) grows it to 5e-10 over
+# M's runs from four starts one ulp away (in the run's precision: every component of the initial
+# q, w, x, v and of I_body moved by one ulp of its vector's largest entry, q renormalised; four
+# orthogonal sign patterns, since at a given time a flip amplifies some directions far more than
+# others).  dt and the loads' step ranges are the case's: round-off does not move a load's switch
+# by a step (a dt one ulp away did, Load.step_range: levels of 0.6-5.7 rad on offset_push).  The four
+# directions are orthogonal (three patterns, two of them each other's negatives, gave two maps
+# 2e-10 rad apart on dzhanibekov_rotated levels 18x apart; these give them 2.8e-10 and 3.2e-10).  A steady spin keeps it near 1e-15; a flip (dzhanibekov) grows it to 5e-10 over
 # 10 s and to 0.4 rad over 1e6 steps.  Compared sample by sample (the spread's running maximum), so
 # no map matches a chaotic run merely because the orientation is lost at its end.  Maps reproducing
 # a run that are within their levels of each other are indistinguishable on the case: a tie (a
@@ -356,6 +359,22 @@ SCHEME_ROUNDOFF_FACTOR = 100.0
 # Below this nothing is distinguishable whatever the case: a few dozen ulps of a unit quaternion,
 # what two float64 codes differ by in forming the same rotation (a conversion, a normalisation).
 SCHEME_ROUNDOFF_FLOOR_RAD = 1e-14
+# A level is at most this: beyond ~0.1 rad the spread of one-ulp starts no longer grows linearly
+# with the perturbation (the orientations' difference saturates towards pi), so it no longer
+# measures round-off, and a level that large would accept maps that differ by their whole scheme.
+# A map whose level reaches it (dzhanibekov over 1e6 steps: 100 x 0.4 rad), or whose perturbed copies
+# or own run are not finite (an unstable spin), identifies nothing on the case from there:
+# "undecidable" (run/judge.identify), never a tie.
+SCHEME_ROUNDOFF_LEVEL_MAX_RAD = 0.1
+# A float32 code may round the same way at every step: |w| then drifts by up to an ulp a step
+# (FLT_EPSILON = 2^-23 relative) and the orientation by up to beta x k x theta_k / 2 after k steps,
+# theta_k the angle the map turned through.  The level of a float32 run is at least that (a
+# float64 code's drift is within SCHEME_ROUNDOFF_FACTOR x s_M, measured above).  Measured: SAPIEN 3
+# pgs (PhysX, float32) on gazebo_boxes_simple at dt = 1e-3 (0.5 rad/s, 1e4 steps) drifts |w| by
+# -3.1e-8 a step (0.26 ulp) and its orientation 8.2e-4 rad from PhysX's float64 map (0.28 x the bound),
+# 100 x s_M being 1.5e-4; on the other loaded cases 0.02-0.25 x the bound.  SAPIEN tgs's solver bias
+# (SAPIEN_TGS_SPIN_DRIFT_PER_STEP, 5e-7 a step) is beyond it: an engine property, not round-off.
+SCHEME_ROUNDING_DRIFT_PER_STEP = {"float32": 2.0 ** -23, "float64": 0.0}
 # A rotation matrix integrated without correction (reference euler-matrix) is diverged once
 # ||R^T R - 1||_F exceeds this.  Explicit Euler stretches R perpendicular to the spin (singular
 # values sqrt(1 + h^2 |w|^2) per step); at 1 the stretched axes' squared lengths are ~1.7 (lengths

@@ -236,21 +236,22 @@ def test_the_round_off_level_is_deterministic_and_shared_exactly(tmp_path):
     level = roundoff_level(a)
     assert np.all(np.diff(level) >= 0) and level[0] >= tol.SCHEME_ROUNDOFF_FLOOR_RAD
     assert level[-1] == max(tol.SCHEME_ROUNDOFF_FACTOR * a.max(), tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+    assert level[-1] < tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD
     # the flip amplifies it by orders of magnitude over the run
     assert a[-1] > 100 * a[1]
 
 
 def test_the_perturbed_start_is_one_ulp_away():
-    pb, dt = load_case("dzhanibekov_rotated"), 0.01
-    pb_u, dt_u = perturbed_start(pb, dt)
+    pb = load_case("dzhanibekov_rotated")
+    pb_u = perturbed_start(pb)
     w, w_u = pb.initial.angular_velocity, pb_u.initial.angular_velocity
     assert np.all(np.abs(w_u - w) == np.spacing(np.max(np.abs(w))))
-    assert abs(dt_u - dt) == np.spacing(dt)
+    assert pb_u.loads == pb.loads and pb_u.duration == pb.duration  # the step grid and loads: the case's
     assert 0 < np.max(np.abs(pb_u.body.I_body - pb.body.I_body)) <= np.spacing(np.max(pb.body.I_body))
     np.testing.assert_array_equal(pb_u.body.I_body, pb_u.body.I_body.T)
     assert np.linalg.norm(pb_u.initial.quaternion_wxyz) == pytest.approx(1.0, abs=1e-15)
     assert not np.array_equal(pb_u.initial.quaternion_wxyz, pb.initial.quaternion_wxyz)
-    f32, _ = perturbed_start(pb, dt, "float32")  # a float32 run's round-off is float32's
+    f32 = perturbed_start(pb, "float32")  # a float32 run's round-off is float32's
     assert np.max(np.abs(f32.initial.angular_velocity - w)) > 1e8 * np.max(np.abs(w_u - w))
 
 
@@ -308,3 +309,142 @@ def test_the_run_table_has_an_orthonormality_column_where_a_run_has_it():
     doc = {"runs": [quat, matrix], "schema_version": 2}
     md = render_markdown(doc, [], {"c": None})
     assert "orthonormality max (\\|\\|R^T R - 1\\|\\|_F)" in md and "2.500e-01" in md
+
+
+# --- honest round-off levels and verdicts (issue 26) -------------------------------------------
+
+PHYSX_MAP = "explicit-gyro-rescaled-momentum"
+
+
+def test_a_float32_level_keeps_the_loads_on_their_steps():
+    """offset_push's push starts and stops on step boundaries (steps 50..70 at dt 0.01): a dt one
+    float32 ulp away moved them by a step and gave levels of 5.7 rad; the level is round-off now,
+    and a float32 judge of PhysX's map names it alone (the next map is 1.7e-2 rad away)."""
+    pb, dt = load_case("offset_push"), 0.01
+    n = pb.steps(dt)
+    assert any(ld.step_range(dt) == (50, 70) for ld in pb.loads)
+    ref = simulate(pb, PHYSX_MAP, dt, n).quaternion_wxyz
+    spread = roundoff_spread(pb, PHYSX_MAP, dt, n, "float32", ref)
+    assert np.max(spread) < 1e-6, np.max(spread)  # 5.7 rad / 100 with the dt nudge
+    m = _identify(pb, simulate(pb, PHYSX_MAP, dt, n), "pgs", dt, n, precision="float32")
+    assert m["verdict"] == "reproduces" and m["indistinguishable"] == [PHYSX_MAP], m["ratios"]
+    assert max(m["levels_rad"].values()) < 1e-3
+
+
+def _identification(names_q: dict, spreads: dict, q_run: np.ndarray, precision="float64") -> dict:
+    """_Identification of the run q_run (N, 4) against the maps names_q (name -> q (N, 4)) with
+    the given spreads (name -> (N,)); every other candidate map is a rotation 1 rad away."""
+    from freebody.run.judge import _Identification
+
+    far = np.array([[np.cos(0.5), np.sin(0.5), 0.0, 0.0]])
+    pb = load_case("spinning_sphere")
+    spec = RunSpec(pb, "engine", "Euler", 0.01, len(q_run) - 1, precision)
+
+    def pieces(name):
+        if name in names_q:
+            yield names_q[name], spreads[name]
+        else:
+            yield _qmul(far, q_run), np.full(len(q_run), 1e-12)
+    ident = _Identification(spec, pieces)
+    ident.update(q_run)
+    return ident.result()
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Quaternion products a b (rows, wxyz)."""
+    aw, ax, ay, az = np.broadcast_arrays(*a.T)
+    bw, bx, by, bz = b.T
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], axis=1)
+
+
+def _turned(q: np.ndarray, angle: float) -> np.ndarray:
+    """q turned by ``angle`` rad about the body x axis, every sample."""
+    return _qmul(q, np.array([[np.cos(angle / 2), np.sin(angle / 2), 0.0, 0.0]]))
+
+
+def _spin(n=50) -> np.ndarray:
+    t = np.linspace(0.0, 1.0, n)
+    return np.stack([np.cos(t / 2), 0 * t, 0 * t, np.sin(t / 2)], axis=1)
+
+
+def test_a_run_nearer_another_map_than_round_off_reproduces_neither():
+    """Map B is within its (large) level of the run, map A is nearer the run by far more than B's
+    round-off yet beyond its own (small) level: the run is 'closest: A', not 'reproduces B'."""
+    q = _spin()
+    maps = {"rk4": _turned(q, 1e-6), "lie-euler": _turned(q, 5e-6)}
+    spreads = {"rk4": np.full(len(q), 1e-10), "lie-euler": np.full(len(q), 1e-7)}
+    m = _identification(maps, spreads, q)
+    assert m["ratios"]["lie-euler"] <= 1 < m["ratios"]["rk4"]
+    assert m["verdict"] == "closest" and m["integrator"] is None and m["closest"] == "rk4"
+    assert m["indistinguishable"] == []
+    # A nearer by less than B's round-off (1e-7 rad): B is reproduced
+    maps["lie-euler"] = _turned(q, 1.05e-6)
+    m = _identification(maps, spreads, q)
+    assert m["verdict"] == "reproduces" and m["integrator"] == "lie-euler", m["ratios"]
+
+
+def test_a_map_whose_perturbed_copies_blow_up_identifies_nothing():
+    """A map whose perturbed copy is not finite (spread inf from some sample on) or whose level
+    reaches the cap is undecidable: not a tie member with a vacuous level, and no level >= the cap."""
+    q = _spin()
+    blown = np.full(len(q), 1e-12)
+    blown[30:] = np.inf
+    wide = np.linspace(1e-6, 2e-3, len(q))  # 100 x 2e-3 = 0.2 rad: beyond the cap
+    maps = {"rk4": q.copy(), "lie-euler": _turned(q, 1e-13), "rkmk4": _turned(q, 1e-7)}
+    m = _identification(maps, {"rk4": blown, "lie-euler": np.full(len(q), 1e-12), "rkmk4": wide}, q)
+    assert set(m["undecidable"]) == {"rk4", "rkmk4"}
+    assert m["verdict"] == "reproduces" and m["indistinguishable"] == ["lie-euler"], m
+    assert max(m["levels_rad"].values()) <= tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD < 1
+    # without the decidable map, the run matches only undecidable ones: undecidable, not a tie
+    maps["lie-euler"] = _turned(q, 1e-3)
+    m = _identification(maps, {"rk4": blown, "lie-euler": np.full(len(q), 1e-12), "rkmk4": wide}, q)
+    assert m["verdict"] == "undecidable" and m["integrator"] is None and m["indistinguishable"] == []
+    assert m["closest"] == "rk4"
+
+
+def test_a_blown_up_perturbed_map_gives_no_vacuous_tie_on_high_spin():
+    """high_spin_dt_10ms: the explicit-gyro maps' perturbed copies blow up (their levels were
+    314 rad and joined 10 maps in a tie); now they are undecidable and the tie holds only maps whose
+    levels are round-off."""
+    pb, dt = load_case("high_spin_dt_10ms"), 0.01
+    n = pb.steps(dt)
+    m = _identify(pb, simulate(pb, "rkmk4-body", dt, n), "RK4", dt, n)
+    assert "semi-implicit-explicit-gyro" in m["undecidable"]
+    assert not set(m["undecidable"]) & set(m["indistinguishable"])
+    assert all(m["levels_rad"][k] < 1e-9 for k in m["indistinguishable"]), m["levels_rad"]
+    assert max(m["levels_rad"].values()) <= tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD
+
+
+def test_a_float32_drift_is_not_taken_for_a_scheme():
+    """gazebo_boxes_simple (a steady spin at 0.5 rad/s, 1e4 steps): a float32 code of PhysX's map
+    whose |w| loses a quarter of an ulp a step (SAPIEN pgs: -3.1e-8 a step) drifts 8e-4 rad from the
+    map, towards the map without gyroscopic term.  Judged in float32 no map is claimed alone:
+    float32 cannot tell them apart; judged as float64 the drift is no map (closest)."""
+    pb, dt = load_case("gazebo_boxes_simple"), 0.001
+    n = pb.steps(dt)
+    q = simulate(pb, PHYSX_MAP, dt, n).quaternion_wxyz
+    k = np.arange(n + 1)
+    phase = -0.5 * 3.1e-8 * k * (0.5 * k * dt)  # -beta k theta_k / 2, theta_k = |w| t_k
+    run = _qmul(q, np.stack([np.cos(phase / 2), np.sin(phase / 2), 0 * phase, 0 * phase], axis=1))
+    tr = simulate(pb, PHYSX_MAP, dt, n)
+    tr.quaternion_wxyz[:] = run
+    m32 = _identify(pb, tr, "pgs", dt, n, precision="float32")
+    assert m32["verdict"] == "indistinguishable" and PHYSX_MAP in m32["indistinguishable"], m32["ratios"]
+    assert "semi-implicit-no-gyro-projected" in m32["indistinguishable"]
+    assert rd.reproduces({"matches_reference": m32, "precision": "float32"}).startswith(
+        "float32 cannot tell these apart: ")
+    m64 = _identify(pb, tr, "pgs", dt, n)
+    assert m64["verdict"] == "closest" and m64["integrator"] is None, m64["ratios"]
+
+
+def test_results_without_a_verdict_still_read():
+    """Results written before the verdict key: derived from integrator, tie and closest."""
+    from freebody.results import identification as ident
+
+    assert ident.verdict({"integrator": "rk4", "indistinguishable": ["rk4"], "closest": "rk4"}) == "reproduces"
+    assert ident.verdict({"integrator": "rk4", "indistinguishable": ["rk4", "lie-euler"]}) == "indistinguishable"
+    assert ident.verdict({"integrator": None, "closest": "rk4", "indistinguishable": []}) == "closest"
+    assert ident.verdict({"integrator": None, "closest": None}) == "undecidable"
+    assert ident.verdict(None) is None
+    assert ident.reproduced({"verdict": "closest", "integrator": None, "closest": "rk4"}) == ()

@@ -303,8 +303,8 @@ def stepped_map_pieces(spec: RunSpec, chunk_steps: int) -> Callable[[str], Itera
     sampling = identification_sampling(spec)
 
     def pieces(name: str):
-        starts = [perturbed_start(pb, dt, spec.precision, signs) for signs in ULP_SIGN_PATTERNS]
-        others = [map_orientations(pb_u, name, dt_u, steps, chunk_steps, sampling) for pb_u, dt_u in starts]
+        starts = [perturbed_start(pb, spec.precision, signs) for signs in ULP_SIGN_PATTERNS]
+        others = [map_orientations(pb_u, name, dt, steps, chunk_steps, sampling) for pb_u in starts]
         for q in map_orientations(pb, name, dt, steps, chunk_steps, sampling):
             spread = np.zeros(len(q))
             for other in others:
@@ -420,22 +420,27 @@ def _nudged(v, pattern: np.ndarray, precision: str) -> np.ndarray:
     return v + u * pattern[:v.size].reshape(v.shape)
 
 
-# The directions of the one-ulp starts: signs of the moves of the components (x, y, z[, w]) and of
-# dt (last).  The spread depends on the direction (a flip amplifies some far more than others at a
-# given time): the largest over a few directions is the round-off level's base.
+# The directions of the one-ulp starts: signs of the moves of the components (x, y, z[, w]).  The
+# spread depends on the direction (at a given time a flip amplifies some directions far more than
+# others): the largest over these is the round-off level's base.  The rows of a 4 x 4 Hadamard
+# matrix: orthogonal, so none is another's negative (which, in the linear regime of round-off, gives
+# the same spread again), and their first three columns span the three directions of w, x and v.
 ULP_SIGN_PATTERNS = (
-    np.array([1.0, -1.0, 1.0, -1.0, 1.0]),
-    np.array([-1.0, 1.0, -1.0, 1.0, -1.0]),
-    np.array([1.0, 1.0, -1.0, -1.0, 1.0]),
+    np.array([1.0, 1.0, 1.0, 1.0]),
+    np.array([1.0, -1.0, 1.0, -1.0]),
+    np.array([1.0, 1.0, -1.0, -1.0]),
+    np.array([1.0, -1.0, -1.0, 1.0]),
 )
 
 
-def perturbed_start(pb: Problem, dt: float, precision: str = "float64",
-                    signs: np.ndarray = ULP_SIGN_PATTERNS[0]) -> tuple[Problem, float]:
-    """The case one ulp away (of ``precision``), and dt one ulp away: every component of the initial
-    q (renormalised), w, x, v and of I_body (kept symmetric) moved by one ulp of its vector's
-    largest entry, in the directions ``signs`` (5,).  What a float code that rounds differently
-    starts from (see :data:`freebody.tolerances.SCHEME_ROUNDOFF_FACTOR`)."""
+def perturbed_start(pb: Problem, precision: str = "float64",
+                    signs: np.ndarray = ULP_SIGN_PATTERNS[0]) -> Problem:
+    """The case one ulp away (of ``precision``): every component of the initial q (renormalised),
+    w, x, v and of I_body (kept symmetric) moved by one ulp of its vector's largest entry, in the
+    directions ``signs`` (4,).  What a float code that rounds differently starts from (see
+    :data:`freebody.tolerances.SCHEME_ROUNDOFF_FACTOR`).  The step grid and the loads' timing are
+    not perturbed: dt is the case's, so every load acts on the same steps (a dt one ulp away moves
+    a load that starts or stops on a step boundary by a whole step, which is no round-off)."""
     ini = pb.initial
     q = _nudged(ini.quaternion_wxyz, signs, precision)
     start = InitialState(_nudged(ini.position, signs, precision), q / np.linalg.norm(q),
@@ -444,19 +449,19 @@ def perturbed_start(pb: Problem, dt: float, precision: str = "float64",
     I_b = np.array(pb.body.I_body, dtype=float)
     I_b = I_b + _ulp(float(np.max(np.abs(np.diag(I_b)))), precision) * np.diag(signs[:3])
     body = dataclasses.replace(pb.body, I_body=I_b)
-    return dataclasses.replace(pb, initial=start, body=body), dt + signs[4] * _ulp(dt, precision)
+    return dataclasses.replace(pb, initial=start, body=body)
 
 
 def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precision: str,
                     q_ref: np.ndarray, load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
     """(steps + 1,) rad: the orientation of the map ``integrator`` (its run's q_ref (steps + 1, 4))
-    against the same map from each of the :func:`perturbed_start` of :data:`ULP_SIGN_PATTERNS`, the
-    largest sample by sample.  A sample where either is not finite counts as pi (the orientation is
-    lost to round-off)."""
+    against the same map from each of the :func:`perturbed_start` of :data:`ULP_SIGN_PATTERNS`
+    (same dt, same load steps), the largest sample by sample.  A sample where either is not finite
+    is inf (a perturbed copy blew up: the map can identify nothing there, see :class:`_Identification`)."""
     spread = np.zeros(len(q_ref))
     for signs in ULP_SIGN_PATTERNS:
-        pb_u, dt_u = perturbed_start(pb, dt, precision, signs)
-        other = _maps.simulate(pb_u, integrator, dt_u, steps,  # not reference_simulate: no map the cache holds
+        pb_u = perturbed_start(pb, precision, signs)
+        other = _maps.simulate(pb_u, integrator, dt, steps,  # not reference_simulate: no map the cache holds
                                load_sampling=load_sampling)
         spread = _spread_update(spread, q_ref, other.quaternion_wxyz)
     return spread
@@ -464,10 +469,10 @@ def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precisi
 
 def _spread_update(spread: np.ndarray, q_ref: np.ndarray, q_other: np.ndarray) -> np.ndarray:
     """The spread (N,) with one more perturbed run's orientations q_other (N, 4) taken in: the
-    largest angle so far, pi where either is not finite."""
+    largest angle so far, inf where either is not finite."""
     with np.errstate(invalid="ignore"):
         s = _angle(q_ref, q_other)
-    return np.maximum(spread, np.where(np.isfinite(s), s, np.pi))
+    return np.maximum(spread, np.where(np.isfinite(s), s, np.inf))
 
 
 def _angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
@@ -484,37 +489,83 @@ def _angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.sqrt(vx * vx + vy * vy + vz * vz), np.abs(w))
 
 
-def roundoff_level(spread: np.ndarray, before: float = 0.0) -> np.ndarray:
+def roundoff_level(spread: np.ndarray, before: float = 0.0, drift: np.ndarray | None = None) -> np.ndarray:
     """The round-off level (N,) rad at each sample from a map's :func:`roundoff_spread`:
-    max(SCHEME_ROUNDOFF_FACTOR x the spread's running maximum, SCHEME_ROUNDOFF_FLOOR_RAD).
-    ``before``: the spread's maximum over the samples before these (a run judged in chunks)."""
-    running = np.maximum(np.maximum.accumulate(spread), before) if len(spread) else spread
-    return np.maximum(tol.SCHEME_ROUNDOFF_FACTOR * running, tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+    max(SCHEME_ROUNDOFF_FACTOR x the spread's running maximum, ``drift`` (a float32 run's
+    :func:`rounding_drift`), SCHEME_ROUNDOFF_FLOOR_RAD), at most SCHEME_ROUNDOFF_LEVEL_MAX_RAD (a
+    sample at the cap, or where a perturbed copy was not finite, is one where the map can identify
+    nothing).  ``before``: the spread's maximum over the samples before these (a run judged in chunks)."""
+    running = np.maximum(np.maximum.accumulate(spread), before) if len(spread) else np.asarray(spread, float)
+    level = np.maximum(tol.SCHEME_ROUNDOFF_FACTOR * running, tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+    if drift is not None:
+        level = np.maximum(level, drift)
+    return np.minimum(level, tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD)
+
+
+def rounding_drift(q_ref: np.ndarray, k0: int, theta0: float, q_before: np.ndarray | None,
+                   precision: str) -> tuple[np.ndarray, float]:
+    """(drift (N,) rad, theta at the last sample): how far a code of the map ``q_ref`` (N, 4) of
+    samples k0 .. k0 + N - 1 may drift by rounding the same way at every step in ``precision``:
+    SCHEME_ROUNDING_DRIFT_PER_STEP[precision] x k x theta_k / 2, theta_k the angle the map turned
+    through up to sample k (rad, the sum of its steps' rotations from theta0 on; ``q_before``: the
+    sample before these, None for the first chunk).  Zero in float64 (SCHEME_ROUNDOFF_FACTOR covers it)."""
+    beta = tol.SCHEME_ROUNDING_DRIFT_PER_STEP.get(precision, 0.0)
+    n = len(q_ref)
+    if beta == 0.0 or n == 0:
+        return np.zeros(n), theta0
+    prev = q_ref[:-1] if q_before is None else np.concatenate([q_before[None, :], q_ref[:-1]])
+    with np.errstate(invalid="ignore"):
+        steps = _angle(prev, q_ref[1:] if q_before is None else q_ref)
+    theta = theta0 + np.cumsum(np.where(np.isfinite(steps), steps, np.inf))
+    if q_before is None:
+        theta = np.concatenate([[theta0], theta])
+    k = np.arange(k0, k0 + n, dtype=float)
+    return beta * k * theta / 2.0, float(theta[-1])
 
 
 def identification_rule(precision: str = "float64") -> str:
     """The identification rule in one line (results.json ``matches_reference["rule"]``)."""
+    drift = tol.SCHEME_ROUNDING_DRIFT_PER_STEP.get(precision, 0.0)
+    drift_text = f", {drift:.3g} x k x theta_k / 2 (a {precision} rounding drift)" if drift else ""
     return (f"reproduces: orientation within max({tol.SCHEME_ROUNDOFF_FACTOR:g} x the spread of a "
-            f"1-ulp ({precision}) perturbed start, {tol.SCHEME_ROUNDOFF_FLOOR_RAD:g} rad) of the map "
-            f"at every sample")
+            f"1-ulp ({precision}) perturbed start{drift_text}, {tol.SCHEME_ROUNDOFF_FLOOR_RAD:g} rad) of the map "
+            f"at every sample, and no other map nearer by more than round-off; a map whose level reaches "
+            f"{tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD:g} rad (or whose run or perturbed copies are not finite) "
+            f"identifies nothing (undecidable)")
+
+
+# matches_reference["verdict"]: what identification concludes about a run
+VERDICT_REPRODUCES = "reproduces"  # one map within its level, no other map nearer by more than round-off
+VERDICT_INDISTINGUISHABLE = "indistinguishable"  # several maps within their levels of the run and of each other
+VERDICT_CLOSEST = "closest"  # no map reproduces the run: the nearest one (closest), how far, its ratio
+VERDICT_UNDECIDABLE = "undecidable"  # the maps near the run cannot identify anything on this case
 
 
 def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCache) -> dict:
-    """Which reference maps this engine run reproduces to round-off, or the closest and how far.
+    """Which reference map this engine run reproduces to round-off, or the closest and how far.
 
-    A map reproduces the run when their orientations agree within the map's round-off level on
-    this case at every sample (:func:`roundoff_level`; the rule in :mod:`freebody.tolerances`,
-    SCHEME_ROUNDOFF_FACTOR).  Maps that reproduce it and are within their levels of each other are
-    indistinguishable on this case (a tie).  Returns (results.json ``matches_reference``):
+    A map is within round-off of the run when their orientations agree within the map's round-off
+    level on this case at every sample (:func:`roundoff_level`; the rule in
+    :mod:`freebody.tolerances`, SCHEME_ROUNDOFF_FACTOR), from four orthogonal one-ulp starts of the
+    initial state (dt and the loads' steps are the case's).  A map whose level reaches
+    SCHEME_ROUNDOFF_LEVEL_MAX_RAD, whose perturbed copies or own run are not finite, before the run
+    left it, is undecidable here: it neither reproduces nor is excluded.  Returns (results.json
+    ``matches_reference``):
 
+    verdict : "reproduces" (one map within its level and no other map nearer than it by more than
+        its round-off), "indistinguishable" (several maps within their levels of the run and of each
+        other: the case, in this precision, cannot tell them apart), "closest" (no map reproduces the
+        run: ``closest`` is the nearest) or "undecidable" (the maps that could match the run are
+        undecidable here).
     integrator : the reproduced map (of a tie, the first in :data:`SCHEME_CANDIDATES` order) or None.
     closest : that map, or the map of smallest max difference when none reproduces the run.
     max_orientation_diff_rad : closest's max difference (rad).
     threshold_rad : closest's round-off level at the last sample (rad; the level grows with t).
     indistinguishable : the maps of the tie in candidate order ([integrator] alone, [] for none).
+    undecidable : the maps that can identify nothing on this case (candidate order).
     candidates : name -> max difference (rad), None where either is not finite.
-    levels_rad : name -> round-off level at the last sample (rad).
-    ratios : name -> max over samples of difference / level (<= 1: reproduces), or None.
+    levels_rad : name -> round-off level at the last sample (rad, at most the cap).
+    ratios : name -> max over samples (below the cap) of difference / level (<= 1: within), or None.
     rule : the rule in words.
 
     The run is taken in as one chunk of :class:`_Identification` (a long run: chunk by chunk).
@@ -527,17 +578,22 @@ def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCac
 
 class _Identification:
     """Scheme identification (:func:`identify`) of a run taken in chunk by chunk: per candidate
-    map, the running maxima of its difference and of the difference over its round-off level, the
-    level's running base, and for each pair of maps that still reproduce the run whether they are
-    within their levels of each other so far (the tie).  ``pieces(name)`` yields the map's q and
-    round-off spread over the same samples as each chunk of the run."""
+    map, the running maxima of its difference and of the difference over its round-off level
+    (on the samples below the cap), the level's running base, whether it reached the cap (undecidable), and for each pair of maps that
+    still reproduce the run whether they are within their levels of each other so far (the tie).
+    ``pieces(name)`` yields the map's q and round-off spread over the same samples as each chunk
+    of the run."""
 
     def __init__(self, spec: RunSpec, pieces: Callable[[str], Iterator]):
         self.spec = spec
         self.names = scheme_candidates(spec.integrator, spec.steps)
         self.pieces = {name: pieces(name) for name in self.names}
-        self.spread_max = {name: 0.0 for name in self.names}
+        self.spread_max = {name: 0.0 for name in self.names}  # the map's own spread so far
+        self.theta = {name: 0.0 for name in self.names}  # the angle the map turned through so far
+        self.last_q: dict[str, np.ndarray] = {}
         self.levels: dict[str, float] = {}
+        self.roundoff: dict[str, float] = {}  # the level without the factor, at the last sample
+        self.closed = {name: False for name in self.names}  # a sample where the map tells nothing, so far
         self.diffs: dict[str, float | None] = {name: 0.0 for name in self.names}
         self.ratios: dict[str, float | None] = {name: 0.0 for name in self.names}
         self.within = {pair: True for pair in itertools.combinations(self.names, 2)}
@@ -545,29 +601,49 @@ class _Identification:
 
     def update(self, q: np.ndarray) -> None:
         """The run's orientations q (m, 4) of its next m samples."""
-        n = len(q)
-        kept = {}
+        n, k0 = len(q), self.n
+        refs, bases, drifts, dists = {}, {}, {}, {}
         for name in self.names:
             q_ref, spread = next(self.pieces[name])
-            level = roundoff_level(spread, self.spread_max[name])
+            refs[name] = q_ref
             if len(spread):
-                self.spread_max[name] = max(self.spread_max[name], float(np.max(spread)))
+                bases[name] = np.maximum(np.maximum.accumulate(spread), self.spread_max[name])
+                self.spread_max[name] = float(bases[name][-1])
+            else:
+                bases[name] = np.zeros(0)
+            drifts[name], self.theta[name] = rounding_drift(q_ref, k0, self.theta[name], self.last_q.get(name),
+                                                            self.spec.precision)
+            if len(q_ref):
+                self.last_q[name] = q_ref[-1]
+            if len(q_ref) >= n:
+                with np.errstate(invalid="ignore"):
+                    dists[name] = _angle(q_ref[:n], q)
+        kept = {}
+        for name in self.names:
+            base = bases[name][:n]
+            level = roundoff_level(base, drift=drifts[name][:n])
+            raw = np.maximum(np.maximum(base, drifts[name][:n]), tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+            if n:
                 self.levels[name] = float(level[-1])
-            if self.ratios[name] is None:
-                continue
-            if len(q_ref) < n:
+                self.roundoff[name] = float(min(raw[-1], tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD))
+            d = dists.get(name)
+            if d is None:  # the map has fewer samples than the run: nothing to compare
                 self.diffs[name] = self.ratios[name] = None
                 continue
             with np.errstate(invalid="ignore"):
-                d = _angle(q_ref[:n], q)
-            if not np.all(np.isfinite(d)):
-                self.diffs[name] = self.ratios[name] = None
+                # the samples where the map can tell anything: its level below the cap, both finite
+                open_ = (np.maximum(tol.SCHEME_ROUNDOFF_FACTOR * base, drifts[name][:n])
+                         < tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD) & np.isfinite(d)
+            if not np.all(open_):
+                self.closed[name] = True
+            if self.diffs[name] is not None:
+                self.diffs[name] = max(self.diffs[name], float(np.max(d))) if np.all(np.isfinite(d)) else None
+            if self.ratios[name] is None:
                 continue
-            if n:
-                self.diffs[name] = max(self.diffs[name], float(np.max(d)))
-                self.ratios[name] = max(self.ratios[name], float(np.max(d / level[:n])))
-            if self.ratios[name] <= 1.0:
-                kept[name] = (q_ref[:n], level[:n])
+            if np.any(open_):
+                self.ratios[name] = max(self.ratios[name], float(np.max(d[open_] / level[open_])))
+            if self.ratios[name] <= 1.0 and not self.closed[name]:
+                kept[name] = (refs[name][:n], level)
         for a, b in self.within:  # the tie: only maps that still reproduce the run matter
             if self.within[(a, b)] and a in kept and b in kept:
                 self.within[(a, b)] = _within(kept[a], kept[b])
@@ -575,18 +651,35 @@ class _Identification:
 
     def result(self) -> dict:
         ratios, diffs, levels = self.ratios, self.diffs, self.levels
-        reproduced = sorted((k for k, r in ratios.items() if r is not None and r <= 1.0), key=ratios.get)
+        # undecidable: the map tells nothing at some sample and the run had not left it before
+        undecidable = [k for k in self.names if self.closed[k] and ratios[k] is not None and ratios[k] <= 1.0]
+        reproduced = sorted((k for k, r in ratios.items() if r is not None and r <= 1.0 and not self.closed[k]),
+                            key=ratios.get)
         tie: list[str] = []
         for name in reproduced:  # the best first; each further map within round-off of those kept
             if all(self.within[_pair(self.names, name, other)] for other in tie):
                 tie.append(name)
-        tie = [k for k in SCHEME_CANDIDATES if k in tie]
         finite = {k: v for k, v in diffs.items() if v is not None}
-        closest = tie[0] if tie else (min(finite, key=finite.get) if finite else None)
-        return {"integrator": tie[0] if tie else None, "closest": closest,
+        nearest = min(finite, key=finite.get) if finite else None
+        if tie:
+            best = tie[0]
+            d_best = finite.get(best)
+            margin = self.roundoff.get(best, tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+            nearer = d_best is None or any(v < d_best - margin for k, v in finite.items() if k not in tie)
+            if nearer:  # another map is nearer the run by more than round-off: no verdict of a map
+                tie = []
+        tie = [k for k in SCHEME_CANDIDATES if k in tie]
+        if tie:
+            verdict = VERDICT_REPRODUCES if len(tie) == 1 else VERDICT_INDISTINGUISHABLE
+        elif nearest is None or nearest in undecidable or (not reproduced and undecidable):
+            verdict = VERDICT_UNDECIDABLE
+        else:
+            verdict = VERDICT_CLOSEST
+        closest = tie[0] if tie else nearest
+        return {"verdict": verdict, "integrator": tie[0] if tie else None, "closest": closest,
                 "max_orientation_diff_rad": finite.get(closest), "candidates": dict(diffs),
-                "threshold_rad": levels.get(closest), "indistinguishable": tie, "levels_rad": dict(levels),
-                "ratios": dict(ratios), "rule": identification_rule(self.spec.precision)}
+                "threshold_rad": levels.get(closest), "indistinguishable": tie, "undecidable": undecidable,
+                "levels_rad": dict(levels), "ratios": dict(ratios), "rule": identification_rule(self.spec.precision)}
 
 
 def _pair(names: tuple, a: str, b: str) -> tuple[str, str]:
