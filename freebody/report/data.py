@@ -20,6 +20,7 @@ from ..reference_impl.rotations import geodesic_angle
 from ..run.metrics import ORIENTATION_ERROR_MAX
 from ..run.records import STATUSES, Status
 from .summary import reproduced_text, run_label
+from ..results import identification
 
 STATUS_ORDER = (Status.FAILED, Status.DIVERGED, Status.SKIPPED, Status.OK)  # worst first
 
@@ -58,8 +59,10 @@ def reproduces(run: dict) -> str:
     m = run.get("matches_reference")
     if not isinstance(m, dict):
         return ""
-    if m.get("integrator"):
-        return f"{reproduced_text(m)} ({num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+    if identification.reproduced(m):
+        return f"{reproduced_text(m, run.get('precision'))} ({num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+    if identification.verdict(m) == identification.UNDECIDABLE:
+        return identification.text(m)
     if m.get("closest"):
         return f"none (closest {m['closest']}, {num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
     return "none"
@@ -378,7 +381,8 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, str, str, flo
         for r in rs:
             if best is None or best not in scheme_set(r):
                 name, reproduced = scheme_key(r)
-                other.append(f"{r['case']} {float(r['dt']):g}: {name if reproduced else f'none (closest {name})'}")
+                undecided = identification.verdict(r.get("matches_reference")) == identification.UNDECIDABLE
+                other.append(f"{r['case']} {float(r['dt']):g}: {name if reproduced else f'undecidable (closest {name})' if undecided else f'none (closest {name})'}")
         shown = best or "none"
         if best is not None:  # maps indistinguishable from it on every run that reproduces it: a tie
             sets = [scheme_set(r) for r in rs if best in scheme_set(r)]

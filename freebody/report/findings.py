@@ -15,6 +15,8 @@ with each other to round-off; runs of two groups differ by their schemes.  A fin
   they cannot, unless the records contradict each other);
 - ``scheme-switch``: an engine run that reproduces on this case another map than on its other
   runs (e.g. a per-step cap that only high spins reach);
+- ``undecidable``: a run whose nearest maps identify nothing on its case (their round-off levels
+  reach the cap, or their perturbed copies blow up: ``matches_reference["verdict"]``);
 - ``outlier``: an orientation error :data:`OUTLIER_FACTOR` times above the median of the other
   engines' runs of the same or lower formal order at the same case and dt (a clamp, a cap, a
   convention trap); it names the map the run reproduces and points at the engine's conventions;
@@ -41,6 +43,7 @@ from ..adapters.base import REFERENCE_ENGINE
 from ..numbers import finite_or_none
 from ..run.metrics import ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE
 from ..run.records import Status
+from ..results import identification
 from .summary import run_label
 
 SEVERITIES = ("error", "warning", "info")  # most severe first
@@ -54,6 +57,7 @@ KINDS = {
     "unsupported-version": ("warning", "engine version not supported"),
     "vs-engine": ("warning", "differs from its original engine"),
     "scheme-switch": ("info", "reproduces another map on this case"),
+    "undecidable": ("info", "no map can be identified on this case"),
     "reference-diverged": ("info", "reference map diverged"),
     "vs-engine-unavailable": ("info", "not compared with its original engine"),
     "not-installed": ("info", "engine not installed"),
@@ -145,8 +149,7 @@ def scheme_set(run: dict) -> tuple[str, ...]:
     m = _match(run)
     if m is None:
         return ()
-    tie = tuple(x for x in (m.get("indistinguishable") or []) if isinstance(x, str))
-    return tie or ((m["integrator"],) if isinstance(m.get("integrator"), str) else ())
+    return identification.reproduced(m)
 
 
 def scheme_key(run: dict) -> tuple[str, bool] | None:
@@ -156,8 +159,9 @@ def scheme_key(run: dict) -> tuple[str, bool] | None:
     m = _match(run)
     if m is None or not _ok(run):
         return None
-    if isinstance(m.get("integrator"), str):
-        return m["integrator"], True
+    tie = identification.reproduced(m)
+    if tie:
+        return tie[0], True
     if isinstance(m.get("closest"), str):
         return m["closest"], False
     return None
@@ -464,6 +468,14 @@ def no_map_findings(runs: list[dict]) -> list[Finding]:
             continue
         name = key[0]
         d, level, ratio = map_distance(r, name), map_level(r, name), map_ratio(r, name)
+        if identification.verdict(_match(r)) == identification.UNDECIDABLE:
+            maps = [x for x in (_match(r).get("undecidable") or []) if isinstance(x, str)]
+            out.append(_finding("undecidable", r, f"undecidable here: {', '.join(maps) or 'the maps near it'} "
+                                                  f"identify nothing on this case (round-off level at "
+                                                  f"{tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD:g} rad, or perturbed copies "
+                                                  f"not finite); closest {name} at {_e(d)} rad",
+                                size_rad=d, source="matches_reference"))
+            continue
         out.append(_finding("no-map", r, f"reproduces no map; closest {name} at {_e(d)} rad"
                                          f"{'' if ratio is None else f', {ratio:.2g} x its round-off level'}"
                                          f"{'' if level is None else f' ({_e(level)} rad)'}",

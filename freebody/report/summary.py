@@ -13,6 +13,7 @@ from ..run.progress import terminal_width
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX,
                            POSITION_ERROR_MAX)
 from ..run.records import STATUSES, Status
+from ..results import identification
 
 
 def fmt(x, spec: str = ".3e") -> str:
@@ -28,11 +29,11 @@ def run_label(run: dict) -> str:
     return label
 
 
-def reproduced_text(match: dict) -> str:
+def reproduced_text(match: dict, precision: str | None = "float64") -> str:
     """What a ``matches_reference`` dict says the run reproduces: 'tie: a = b = c' when two or more
-    maps are indistinguishable on the case, else the map's name ('' when none reproduces it)."""
-    tie = [x for x in (match.get("indistinguishable") or []) if isinstance(x, str)]
-    return f"tie: {' = '.join(tie)}" if len(tie) >= 2 else (match.get("integrator") or "")
+    maps are indistinguishable on the case ('float32 cannot tell these apart: a, b' in float32),
+    else the map's name ('' when none reproduces it: closest or undecidable)."""
+    return identification.tie_text(identification.reproduced(match), precision)
 
 
 def summary_table(runs: list[dict]) -> str:
@@ -45,7 +46,10 @@ def summary_table(runs: list[dict]) -> str:
         m = r.get("metrics") or {}
         match = r.get("matches_reference")
         if match:
-            shown = reproduced_text(match) or f"none (closest {match.get('closest')})"
+            shown = reproduced_text(match, r.get("precision"))
+            if not shown and identification.verdict(match) == identification.UNDECIDABLE:
+                shown = f"undecidable here (closest {match.get('closest')})"
+            shown = shown or f"none (closest {match.get('closest')})"
             repro = f"{shown} {fmt(match.get('max_orientation_diff_rad'), '.1e')}"
         else:
             repro = ""

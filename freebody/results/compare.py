@@ -33,6 +33,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .. import tolerances as tol
+from . import identification
 from .io import read_regular_file
 from ..errors import InputError, printable
 from ..numbers import finite_or_none
@@ -288,14 +289,13 @@ def _default_changes(b_runs: dict, c_runs: dict) -> list[tuple[str, str, str, st
 
 def scheme_of(run: dict) -> tuple[str, ...] | None:
     """The reference maps a run reproduces (several: indistinguishable on its case), () when it
-    reproduces none, None when it was not identified (a reference run, a run not ok)."""
+    reproduces none (closest), None when it was not identified (a reference run, a run not ok) or
+    identification could not decide on its case (``verdict`` undecidable: no scheme to compare)."""
     m = run.get("matches_reference")
-    if not isinstance(m, dict):
+    v = identification.verdict(m)
+    if v is None or v == identification.UNDECIDABLE:
         return None
-    tie = [x for x in (m.get("indistinguishable") or []) if isinstance(x, str)]
-    if tie:
-        return tuple(tie)
-    return (m["integrator"],) if isinstance(m.get("integrator"), str) else ()
+    return identification.reproduced(m)
 
 
 def scheme_text(scheme: tuple[str, ...] | None, run: dict | None = None) -> str:
