@@ -260,3 +260,163 @@ def test_reports_open_on_findings_and_show_the_compare_verdict(small_run):
 
 def test_outlier_floor_is_the_truths_accuracy():
     assert fd.OUTLIER_FLOOR_RAD["float64"] == tol.CONVERGENCE_ORIENTATION_FLOOR_RAD
+
+
+# --- blow-ups, the rotation cap per step, saturated orientations (issue 26, items 5 and 8) ----------
+
+def thin_disk(duration: float = 3.5):
+    """A thin disk (r = 0.5 m, 2 cm thick, 2 kg) spun at 20 rad/s about the vertical with its axis
+    tilted 30 degrees, under gravity: torque-free about its COM, so the truth spins steadily, while
+    an explicit gyroscopic term at dt = 0.01 blows up (|w| beyond 20x the truth's from t = 2.5 s)."""
+    from freebody.reference_impl.problem import Body, InitialState, Problem
+
+    m, r, h = 2.0, 0.5, 0.02
+    it = m * (3 * r * r + h * h) / 12
+    return Problem(name="thin_disk", description=thin_disk.__doc__, body=Body(m, np.diag([it, it, m * r * r / 2])),
+                   initial=InitialState(np.zeros(3), quat_from_rotvec(np.array([np.pi / 6, 0.0, 0.0])),
+                                        np.zeros(3), np.array([0.0, 0.0, 20.0])),
+                   gravity=np.array([0.0, 0.0, -9.81]), duration=duration, dts=(0.01,))
+
+
+# the engines whose default integrator has an explicit gyroscopic term, and one implicit (bounded)
+EXPLICIT_GYRO = (("mujoco", "Euler"), ("pybullet", "multibody"), ("dart", "semi-implicit-euler"))
+IMPLICIT_GYRO = (("mujoco", "implicitfast"), ("pybullet", "maximal"))
+
+
+@pytest.fixture(scope="module")
+def disk_runs():
+    from freebody.adapters.base import is_available
+    from freebody.api import run_case
+
+    missing = sorted({e for e, _ in EXPLICIT_GYRO + IMPLICIT_GYRO if not is_available(e)})
+    if missing:
+        pytest.skip(f"not installed: {', '.join(missing)}")
+    pb = thin_disk()
+    return [run_case(pb, engine=e, integrator=i, dt=0.01).result.to_json() for e, i in EXPLICIT_GYRO + IMPLICIT_GYRO]
+
+
+def test_the_thin_disk_blow_up_is_a_finding_for_the_explicit_gyro_engines(disk_runs):
+    from freebody.report.summary import terminal_summary
+
+    found = fd.find(disk_runs)
+    blown = {f.label for f in found if f.kind == "blow-up"}
+    assert blown == {f"{e}/{i}" for e, i in EXPLICIT_GYRO}
+    for r in disk_runs:
+        g = r["state_growth"]
+        if (r["engine"], r["integrator"]) in EXPLICIT_GYRO:
+            assert r["status"] == "ok" and g["omega_ratio"] > tol.BLOW_UP_OMEGA_FACTOR
+            assert 2.0 < g["blow_up_t_s"] < 3.0  # |w| passes 20x the truth's at 2.5 s
+        else:  # the implicit gyroscopic term keeps |w| and the energy bounded
+            assert g["blow_up_t_s"] is None and g["omega_ratio"] < 1.01 and g["kinetic_energy_ratio"] < 1.01
+    for f in found:  # "closest ... at 3.1 rad" is never said of a saturated run
+        assert "closest" not in f.text, f.text
+    text = " ".join(f.text for f in found if f.kind == "blow-up")
+    assert "|w| " in text and "rad/s" in text and "kinetic energy x" in text
+    cells = terminal_summary(disk_runs).splitlines()
+    row = next(ln for ln in cells if ln.startswith("thin_disk"))
+    assert row.count("b") == 3, row  # one blow-up marker per engine column
+    assert any(ln.startswith("b: blow-up") for ln in cells)
+
+
+def test_pybullet_multibody_on_high_spin_names_the_pi_4_cap():
+    """high_spin_dt_10ms turns 1.5 rad a step: beyond Bullet's pi/4 cap from the first step; the
+    finding names the cap, not the map the capped run happens to reproduce."""
+    from freebody.adapters.base import is_available
+    from freebody.api import run_case
+
+    if not is_available("pybullet"):
+        pytest.skip("pybullet not installed")
+    r = run_case("high_spin_dt_10ms", engine="pybullet", integrator="multibody", duration=0.2).result.to_json()
+    g = r["state_growth"]
+    assert g["step_rotation_cap_rad"] == pytest.approx(np.pi / 4)
+    assert g["rotation_per_step_max_rad"] == pytest.approx(1.5) and g["rotation_cap_t_s"] == 0.0
+    found = fd.find([r])
+    cap = [f for f in found if f.kind == "rotation-cap"]
+    assert len(cap) == 1 and "the pi/4 rotation cap per step" in cap[0].text
+    # an outlier of the same run says the cause is the cap (and not the reproduced map's summary)
+    peer = {**copy.deepcopy(r), "engine": "other", "metrics": {"orientation_error_max_rad": 1e-6},
+            "state_growth": None}
+    out = [f for f in fd.find([r, peer]) if f.label == "pybullet/multibody"]
+    assert [f.kind for f in out] == ["outlier"] and "cause: the pi/4 rotation cap per step" in out[0].text
+    # a run of an engine that declares no cap gets no cap finding, whatever its |w| dt
+    other = {**copy.deepcopy(r), "state_growth": {**g, "step_rotation_cap_rad": None, "rotation_cap_t_s": None}}
+    assert not [f for f in fd.find([other]) if f.kind == "rotation-cap"]
+
+
+def test_growth_is_the_same_judged_whole_or_in_chunks():
+    from freebody.reference_impl.integrators import simulate
+    from freebody.reference_impl.truth import truth_trajectory
+    from freebody.run.metrics import GrowthStats, truth_scales
+
+    pb = thin_disk(3.0)
+    tr = simulate(pb, "semi-implicit-explicit-gyro", 0.01, 300)
+    scales = truth_scales(pb, truth_trajectory(pb, 0.01, 300))
+    whole, chunked = GrowthStats(0.01, np.pi / 4), GrowthStats(0.01, np.pi / 4)
+    whole.update(pb, tr, 0, scales)
+    for k0 in range(0, 301, 70):
+        chunked.update(pb, tr.take(np.arange(k0, min(k0 + 70, 301))), k0, scales)
+    assert whole.result(scales) == chunked.result(scales)
+    assert whole.result(scales)["blow_up_t_s"] is not None
+
+
+def test_a_saturated_run_is_said_lost_not_closest():
+    lost = run("e", "x", reproduces=None, error=3.1)
+    lost["matches_reference"] = match(None, closest="rk4", distance=3.1)
+    near = run("f", "y", reproduces=None)
+    near["matches_reference"] = match(None, closest="rk4", distance=1e-6)
+    by = {f.label: f for f in fd.find([lost, near]) if f.kind == "no-map"}
+    assert "closest" not in by["e/x"].text and "orientation is lost" in by["e/x"].text
+    assert "closest rk4" in by["f/y"].text
+    from freebody.report.summary import summary_table
+
+    table = summary_table([lost, near])
+    assert "orientation lost" in table and "none (closest rk4)" in table
+
+
+def test_results_without_state_growth_raise_no_growth_finding():
+    r = run("e", "x")
+    assert "state_growth" not in r
+    assert not [f for f in fd.find([r]) if f.kind in ("blow-up", "rotation-cap")]
+
+
+# --- expected orders (issue 26, item 9) ------------------------------------------------------------
+
+def _fit(engine: str, integrator: str, case: str, order: float) -> dict:
+    from freebody.run.metrics import ORIENTATION_ERROR_MAX
+
+    return {"case": case, "engine": engine, "integrator": integrator, "precision": "float64",
+            "metric": ORIENTATION_ERROR_MAX, "order": order, "dts": [0.005, 0.01, 0.02],
+            "fitted_dts": [0.005, 0.01, 0.02], "fit_rms_decades": 0.01, "saturated": False}
+
+
+def test_expected_order_comes_from_engine_maps_and_is_limited_by_per_step_sampling():
+    rs = [run("mujoco", "RK4", case="c", dt=d, reproduces="rkmk4-body") for d in (0.02, 0.01, 0.005)]
+    assert fd.expected_order(rs).text == "4 (rkmk4-body)"
+    per_step = [{**r, "load_sampling": "per-step"} for r in rs]
+    exp = fd.expected_order(per_step, state_dependent=True)
+    assert exp.order == 1 and exp.scheme_order == 4 and "limited by per-step load sampling" in exp.text
+    assert fd.expected_order(per_step, state_dependent=False).order == 4  # world couples: the same experiment
+    cases = {"c": {"state_dependent_loads": True}}
+    # observed 1.01 against 4: a finding; against the limited 1: none
+    found = fd.find(rs, convergence=[_fit("mujoco", "RK4", "c", 1.01)], cases=cases)
+    assert [f.kind for f in found] == ["order"] and "expected 4 (rkmk4-body)" in found[0].text
+    assert not fd.find(per_step, convergence=[_fit("mujoco", "RK4", "c", 1.01)], cases=cases)
+    assert not fd.find(rs, convergence=[_fit("mujoco", "RK4", "c", 4.02)], cases=cases)
+    columns, rows = rd.observed_orders([_fit("mujoco", "RK4", "c", 1.01)], per_step, cases)
+    assert "limited by per-step load sampling" in rows[0][columns.index(rd.ORDER_EXPECTED_COLUMN)]
+
+
+def test_every_engine_run_of_a_convergence_case_has_its_expected_order():
+    """Real runs at three dts: each engine run's expected order is shown (engine maps included)."""
+    from freebody.adapters.base import is_available
+    from freebody.api import run_case
+    from freebody.run.convergence import fit_orders
+
+    if not is_available("mujoco"):
+        pytest.skip("mujoco not installed")
+    runs = [o.result.to_json() for i in ("RK4", "Euler")
+            for o in run_case("convergence_tumbling", engine="mujoco", integrator=i, duration=0.5)]
+    assert len({r["dt"] for r in runs}) >= 3
+    columns, rows = rd.observed_orders(fit_orders(runs), runs)
+    expected = {row[0]: row[columns.index(rd.ORDER_EXPECTED_COLUMN)] for row in rows}
+    assert expected["mujoco/RK4"].startswith("4 (") and expected["mujoco/Euler"].startswith("1 (")

@@ -278,6 +278,111 @@ def _assert_same_trajectory(a, b):
         assert np.array_equal(getattr(a, field), getattr(b, field), equal_nan=True), field
 
 
+# --- loads at every RK4 stage -------------------------------------------------------------------
+
+# MuJoCo RK4 against its map with the loads at every stage (rkmk4-body in 4.x, rk4-body-exp in
+# 3.x), 100 steps of dt 0.01 on a rotated moving body: round-off only, measured 3e-15 rad; the map
+# with the loads held over the step is 1e-4 rad or more away on each load kind below.
+RK4_PER_STAGE_TOL = 1e-11
+RK4_PER_STEP_APART = 1e-6
+# Observed order of MuJoCo 4 RK4 under a body couple (convergence_body_torque's body and state, 1 s,
+# dt 0.02 -> 0.01 -> 0.005, numerical truth): measured 3.99 (before the loads reached every stage:
+# 1.01).  MuJoCo 3.x orientation: 2.00.
+RK4_LOADED_ORDER_SLACK = 0.3
+
+STATE_DEPENDENT_LOADS = {
+    "body couple": (Load(body_torque=np.array([0.2, -0.1, 0.5])),),
+    "body-point force": (Load(force=np.array([0.0, 3.0, -1.0]), body_point=np.array([0.3, 0.2, -0.1])),),
+    "world-point force": (Load(force=np.array([1.0, 0.0, 2.0]), point=np.array([0.5, 0.5, 0.5])),),
+    "all, switching": (Load(body_torque=np.array([0.2, -0.1, 0.5]), start=0.2, end=0.6),
+                       Load(force=np.array([0.0, 3.0, -1.0]), body_point=np.array([0.3, 0.2, -0.1]),
+                            start=0.3),
+                       Load(force=np.array([1.0, 0.0, 2.0]), point=np.array([0.5, 0.5, 0.5]), steps=40),
+                       Load(torque=np.array([0.0, 0.1, 0.0]))),
+}
+
+
+def _rk4_map() -> str:
+    return "rkmk4-body" if int(mujoco.__version__.split(".")[0]) >= 4 else "rk4-body-exp"
+
+
+@pytest.mark.parametrize("kind", STATE_DEPENDENT_LOADS)
+def test_rk4_evaluates_the_loads_at_every_stage(kind):
+    """Every load reaches every RK4 stage as the case defines it: the run is the map with the loads
+    at each stage's state, not the map with the step's start's world wrench held."""
+    pb = _general_problem(loads=STATE_DEPENDENT_LOADS[kind])
+    dt, steps = 0.01, 100
+    a = MujocoAdapter(pb, dt, "RK4")
+    tr = a.simulate(steps)
+    per_stage = simulate(pb, _rk4_map(), dt, steps, load_sampling="per-stage")
+    per_step = simulate(pb, _rk4_map(), dt, steps, load_sampling="per-step")
+    assert _max_angle(tr, per_stage) <= RK4_PER_STAGE_TOL
+    assert np.max(np.abs(tr.angular_velocity - per_stage.angular_velocity)) <= RK4_PER_STAGE_TOL * 10
+    assert np.max(np.abs(tr.position - per_stage.position)) <= RK4_PER_STAGE_TOL * 10
+    assert _max_angle(tr, per_step) > RK4_PER_STEP_APART
+    assert MujocoAdapter.run_load_sampling(pb) == "per-stage"
+    assert not np.any(a.data.xfrc_applied) and not np.any(a.data.qfrc_applied)
+
+
+def test_rk4_is_fourth_order_under_a_body_couple():
+    from freebody.input import load_case
+    from freebody.reference_impl.truth import truth_trajectory
+    pb = load_case("convergence_body_torque")
+    errors = []
+    for dt in (0.02, 0.01, 0.005):
+        steps = pb.steps(dt)
+        tr = MujocoAdapter(pb, dt, "RK4").simulate(steps)
+        errors.append(_max_angle(tr, truth_trajectory(pb, dt, steps)))
+    order = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    expected = 4 if _rk4_map() == "rkmk4-body" else 2
+    assert np.all(np.abs(order - expected) <= RK4_LOADED_ORDER_SLACK), (errors, order)
+
+
+class _Sentinel:
+    """A control callback of someone else's: counts its calls."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self, m, d):
+        self.calls += 1
+
+
+def test_stage_callback_is_removed_and_leaves_other_data_to_the_previous_one(monkeypatch):
+    """mjcb_control is process-global: the adapter installs its callback only while a point force
+    acts under RK4, passes another data to the callback it replaced, and restores that one after
+    the run, after an exception too."""
+    pb = _general_problem(loads=STATE_DEPENDENT_LOADS["all, switching"])
+    other_model = mujoco.MjModel.from_xml_string("<mujoco><worldbody><body><freejoint/><geom size='0.1'/>"
+                                                 "</body></worldbody></mujoco>")
+    other = mujoco.MjData(other_model)
+    a = MujocoAdapter(pb, 0.01, "RK4")
+    b = MujocoAdapter(pb, 0.01, "RK4")
+    sentinel = _Sentinel()  # installed after the models are compiled (the compiler calls it too)
+    mujoco.set_mjcb_control(sentinel)
+    try:
+        a.simulate(100)
+        assert sentinel.calls == 0  # the adapter's data went to the adapter's callback
+        assert mujoco.get_mjcb_control() is sentinel
+        mujoco.mj_step(other_model, other)
+        assert sentinel.calls == 1
+        # an exception inside the callback's stretch: the callback is still restored
+        installed = []
+
+        def failing_loop(self, *args):
+            installed.append(mujoco.get_mjcb_control())
+            raise RuntimeError("engine failed")
+
+        monkeypatch.setattr(MujocoAdapter, "_loop", failing_loop)
+        with pytest.raises(RuntimeError):
+            b.simulate(3000)
+        assert installed and installed[0] not in (None, sentinel)
+        assert mujoco.get_mjcb_control() is sentinel
+    finally:
+        mujoco.set_mjcb_control(None)
+    assert mujoco.get_mjcb_control() is None
+
+
 def _constant_wrench_loads():
     """Loads with world-fixed wrenches only (COM forces, world couples), switching on and off."""
     return (Load(force=np.array([0.5, -1.0, 2.0]), start=0.1, end=0.9),
@@ -286,16 +391,20 @@ def _constant_wrench_loads():
 
 
 @pytest.mark.parametrize("integrator", MujocoAdapter.offered_integrators())
-@pytest.mark.parametrize("loaded", [False, True], ids=["load-free", "constant-wrench"])
+@pytest.mark.parametrize("loaded", [False, True, "body couple"], ids=["load-free", "constant-wrench", "body-couple"])
 def test_rollout_path_equals_base_loop(integrator, loaded, monkeypatch):
-    """Stretches without state-dependent loads run through mujoco.rollout: the same trajectory, bit
-    for bit, as the base loop and as the Python loop over mj_step."""
-    pb = _general_problem(loads=_constant_wrench_loads() if loaded else ())
+    """Stretches without point forces (none, world-fixed wrenches, body couples in qfrc_applied) run
+    through mujoco.rollout: the same trajectory, bit for bit, as the base loop and as the Python
+    loop over mj_step."""
+    loads = _constant_wrench_loads() if loaded else ()
+    if loaded == "body couple":
+        loads += (Load(body_torque=np.array([0.0, 0.3, 0.1]), start=0.3, end=1.0),)
+    pb = _general_problem(loads=loads)
     dt, steps = 0.005, 260  # stretches of 20 to 140 steps: some rolled out, some looped
     a = MujocoAdapter(pb, dt, integrator)
     fast = a.simulate(steps)
     assert a._roller is not None  # the rollout path was taken
-    assert not np.any(a.data.xfrc_applied)
+    assert not np.any(a.data.xfrc_applied) and not np.any(a.data.qfrc_applied)
     _, slow = _step_by_step(pb, dt, integrator, steps)
     _assert_same_trajectory(fast, slow)
     monkeypatch.setattr(mujoco_adapter, "_ROLLOUT_MIN_STEPS", 10 ** 9)
@@ -337,7 +446,8 @@ def test_chunked_loop_reports_divergence_at_the_step(check_every, tmp_path, monk
     the chunk), with the base loop's time, trajectory, counters and message."""
     monkeypatch.chdir(tmp_path)  # MuJoCo appends its warnings to ./MUJOCO_LOG.TXT
     monkeypatch.setattr(mujoco_adapter, "_CHECK_EVERY", check_every)
-    pb = _blow_up_problem(loads=(Load(body_torque=np.array([0.0, 1e-9, 0.0])),))
+    # a force at a body point (its torque depends on the pose) keeps the run in the Python loop
+    pb = _blow_up_problem(loads=(Load(force=np.array([0.0, 1e-9, 0.0]), body_point=np.array([0.1, 0.0, 0.0])),))
     a = MujocoAdapter(pb, 0.01, "Euler")
     with pytest.raises(EngineDiverged) as fast:
         a.simulate(3000)
