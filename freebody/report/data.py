@@ -140,12 +140,20 @@ class CasePhysics:
         return out
 
 
+def state_dependent(problem) -> bool:
+    """Whether any of the case's loads depends on the state: a body-frame couple (R tau_b) or a
+    force at a point ((R b) x f at a body point, (p - x) x f at a world point)."""
+    return any(np.any(ld.body_torque) or (np.any(ld.force) and (ld.point is not None or ld.body_point is not None))
+               for ld in problem.loads)
+
+
 def case_record(problem, truth: str) -> dict:
     """The results.json ``"cases"`` entry of a Problem: enough to recompute L and E from states."""
     return {"description": problem.description, "truth": truth, "mass": float(problem.body.mass),
             "inertia": np.asarray(problem.body.I_body, dtype=float).tolist(),
             "gravity": np.asarray(problem.gravity, dtype=float).tolist(),
             "torque_free": bool(problem.torque_free), "dts": list(problem.dts),
+            "state_dependent_loads": state_dependent(problem),
             "duration": problem.duration, "duration_steps": problem.duration_steps}
 
 
@@ -468,45 +476,37 @@ def _order_cell(entry: dict | None) -> str:
     return format(p, ".2f") if p is not None else ("sat." if entry.get("saturated") else "-")
 
 
-def expected_order(runs: list[dict]) -> str:
-    """The formal order of the scheme that these runs of one engine run follow, '' when unknown.
+def expected_order(runs: list[dict], cases: dict | None = None) -> str:
+    """The expected order of these runs of one engine run (over the cases they ran), '' when
+    unknown: :func:`freebody.report.findings.expected_order` per case (the map it reproduces or
+    comes closest to, engine-equivalent maps included; 1 where per-step load sampling limits it on
+    a case whose loads depend on the state, results.json ``cases``), one text when every case
+    expects the same, else the most common one and the cases that differ ('4 (rkmk4-body);
+    convergence_body_torque: 1 (limited by per-step load sampling; ...)')."""
+    from .findings import expected_order as expected, state_dependent_loads
 
-    A reference integrator declares its order (``reference_impl.integrators.INTEGRATORS``); an
-    engine run has the order of the reference map that every one of its ok runs reproduces
-    (``matches_reference``; the maps of a tie must share one order), shown with the map's name.
-    A run that reproduces no map leaves the order unknown: there is no claim to check.
-    """
-    from ..reference_impl.integrators import INTEGRATORS
-
-    if not runs:
+    per_case: dict[str, str] = {}
+    for case in dict.fromkeys(r.get("case") for r in runs):
+        e = expected([r for r in runs if r.get("case") == case], state_dependent_loads(cases, str(case)))
+        if e is not None:
+            per_case[str(case)] = e.text
+    if not per_case:
         return ""
-    if runs[0].get("engine") == REFERENCE_ENGINE:
-        scheme = INTEGRATORS.get(runs[0].get("integrator"))
-        return str(scheme.order) if scheme is not None else ""
-    maps: set[str] = set()
-    for r in runs:
-        if r.get("status") != Status.OK:
-            continue
-        m = r.get("matches_reference")
-        if not isinstance(m, dict):
-            return ""
-        tie = [x for x in (m.get("indistinguishable") or []) if isinstance(x, str)]
-        found = tie if len(tie) >= 2 else ([m["integrator"]] if m.get("integrator") else [])
-        if not found or any(x not in INTEGRATORS for x in found):
-            return ""
-        maps.update(found)
-    orders = {INTEGRATORS[x].order for x in maps}
-    if len(orders) != 1:
-        return ""
-    return f"{orders.pop()} ({' = '.join(sorted(maps))})"
+    texts = list(per_case.values())
+    common = max(dict.fromkeys(texts), key=texts.count)
+    others = [f"{c}: {t}" for c, t in per_case.items() if t != common]
+    return "; ".join([common, *others])
 
 
-def observed_orders(convergence: list[dict], runs: list[dict]) -> tuple[list[str], list[list[str]]]:
+def observed_orders(convergence: list[dict], runs: list[dict],
+                    case_records: dict | None = None) -> tuple[list[str], list[list[str]]]:
     """(columns, rows) of the front page's "Observed order" table: one row per engine run (engine,
     integrator, precision) that ran a case at 3 or more time steps; per such case the fitted order
     of the orientation error and of the energy error ("p_orientation / p_energy", see
     :func:`_order_cell`); the largest ``fit_rms_decades`` of those fits; and
-    :func:`expected_order` over the engine run's runs of those cases.  ([], []) without fits."""
+    :func:`expected_order` over the engine run's runs of the cases it was fitted on
+    (``case_records``: results.json ``cases``, which say whether a case's loads depend on the
+    state).  ([], []) without fits."""
     from ..run.metrics import ENERGY_ERROR_MAX_REL
 
     fits: dict[tuple[str, str], dict[str, dict]] = {}
@@ -533,7 +533,9 @@ def observed_orders(convergence: list[dict], runs: list[dict]) -> tuple[list[str
                 if rms is not None:
                     worst = rms if worst is None else max(worst, rms)
         row.append(num(worst, ".3f"))
-        row.append(expected_order([r for r in runs if label(r) == lab and r.get("case") in cases]) or "-")
+        fitted = {c for c in cases if (lab, c) in fits}
+        row.append(expected_order([r for r in runs if label(r) == lab and r.get("case") in fitted],
+                                  case_records) or "-")
         rows.append(row)
     return ["engine run", *cases, ORDER_FIT_COLUMN, ORDER_EXPECTED_COLUMN], rows
 

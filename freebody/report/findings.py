@@ -41,7 +41,7 @@ import numpy as np
 from .. import tolerances as tol
 from ..adapters.base import REFERENCE_ENGINE
 from ..numbers import finite_or_none
-from ..run.metrics import ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE
+from ..run.metrics import ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, STATE_GROWTH
 from ..run.records import Status
 from ..results import identification
 from .summary import run_label
@@ -53,12 +53,16 @@ KINDS = {
     "same-map-disagreement": ("error", "same map, different results"),
     "no-map": ("warning", "reproduces no reference map"),
     "outlier": ("warning", "error far above the other engines'"),
+    "blow-up": ("warning", "|w| or energy blew up"),
+    "rotation-cap": ("warning", "rotation per step beyond the engine's cap"),
+    "order": ("warning", "observed order far from the expected one"),
     "diverged": ("warning", "diverged"),
     "unsupported-version": ("warning", "engine version not supported"),
     "vs-engine": ("warning", "differs from its original engine"),
     "scheme-switch": ("info", "reproduces another map on this case"),
     "undecidable": ("info", "no map can be identified on this case"),
     "reference-diverged": ("info", "reference map diverged"),
+    "reference-blow-up": ("info", "reference map blew up"),
     "vs-engine-unavailable": ("info", "not compared with its original engine"),
     "not-installed": ("info", "engine not installed"),
 }
@@ -459,6 +463,251 @@ def status_findings(runs: list[dict]) -> list[Finding]:
     return out
 
 
+# --- blow-ups, the rotation cap per step, saturated orientations ---------------------------------
+
+def growth(run: dict) -> dict:
+    """The run's ``state_growth`` (:class:`freebody.run.metrics.GrowthStats`), {} when it has none
+    (results written before it, a run without samples)."""
+    g = run.get(STATE_GROWTH)
+    return g if isinstance(g, dict) else {}
+
+
+def blew_up(run: dict) -> bool:
+    """Whether an ok run's |w| or kinetic energy went beyond the blow-up bounds
+    (``state_growth["blow_up_t_s"]``: BLOW_UP_OMEGA_FACTOR x the truth's max |w| or
+    BLOW_UP_ENERGY_FACTOR x its max KE)."""
+    return _ok(run) and finite_or_none(growth(run).get("blow_up_t_s")) is not None
+
+
+def capped(run: dict) -> bool:
+    """Whether an ok run turned faster than its engine's declared rotation cap per step allows
+    (``state_growth["rotation_cap_t_s"]``)."""
+    g = growth(run)
+    return _ok(run) and finite_or_none(g.get("rotation_cap_t_s")) is not None \
+        and finite_or_none(g.get("step_rotation_cap_rad")) is not None
+
+
+def factor(x: float) -> str:
+    """A ratio as '797' or '6.5e3' (three digits below 1000, else two in scientific notation)."""
+    if x < 1e3:
+        return f"{x:.3g}"
+    mantissa, exponent = f"{x:.1e}".split("e")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def angle_text(a: float) -> str:
+    """An angle as a fraction of pi when it is one ('pi/4'), else in rad ('0.5 rad')."""
+    for n in (1, 2, 3, 4, 6, 8):
+        if math.isclose(a, math.pi / n, rel_tol=1e-9):
+            return "pi" if n == 1 else f"pi/{n}"
+    return f"{a:.3g} rad"
+
+
+def cap_text(run: dict) -> str:
+    """'the pi/4 rotation cap per step (|w| dt reaches 1.5 rad from t = 0 s)' of a capped run."""
+    g = growth(run)
+    cap = float(g["step_rotation_cap_rad"])
+    rot = finite_or_none(g.get("rotation_per_step_max_rad"))
+    reach = "" if rot is None else f"|w| dt reaches {rot:.3g} rad"
+    return (f"the {angle_text(cap)} rotation cap per step ({reach}{', ' if reach else ''}beyond "
+            f"{cap:.3g} rad from t = {float(g['rotation_cap_t_s']):.4g} s; its conventions: rotation cap)")
+
+
+def saturated(run: dict) -> bool:
+    """Whether a run that reproduces no map is as far from the closest map as a lost orientation
+    is (beyond CONVERGENCE_ORIENTATION_SATURATED_RAD): every map is then about as far, and which
+    one is closest says nothing about the scheme."""
+    key = scheme_key(run)
+    if key is None or key[1]:
+        return False
+    d = map_distance(run, key[0])
+    return d is None or d > tol.CONVERGENCE_ORIENTATION_SATURATED_RAD
+
+
+def _scheme_text(run: dict) -> str:
+    """What identification says of a run, for a finding's explanation: 'it reproduces X (summary)',
+    'its orientation is lost (...)', 'it reproduces no map (closest X at d rad)', or ''."""
+    key = scheme_key(run)
+    if key is None:
+        return ""
+    name, reproduced = key
+    if reproduced:
+        summary = map_summary(name)
+        return f"it reproduces {name}" + (f" ({summary})" if summary else "")
+    d = map_distance(run, name)
+    if saturated(run):
+        return (f"its orientation is lost (every map is {_e(d)} rad or more away, beyond "
+                f"{tol.CONVERGENCE_ORIENTATION_SATURATED_RAD:g} rad: no distance ranks a scheme)")
+    return f"it reproduces no map (closest {name} at {_e(d)} rad)"
+
+
+def blow_up_findings(runs: list[dict]) -> list[Finding]:
+    """Ok runs whose |w| or kinetic energy grew beyond the blow-up bounds (``state_growth``): how far,
+    from when, and what identification says of them (the map they reproduce blows up alike: the
+    scheme's own instability); a reference map's blow-up is ``reference-blow-up`` (info)."""
+    out = []
+    for r in runs:
+        if not blew_up(r):
+            continue
+        g = growth(r)
+        w, wr = finite_or_none(g.get("omega_max_rad_s")), finite_or_none(g.get("omega_ratio"))
+        ker, t_w = finite_or_none(g.get("kinetic_energy_ratio")), finite_or_none(g.get("omega_max_t_s"))
+        t0 = float(g["blow_up_t_s"])
+        parts = []
+        if w is not None:
+            parts.append(f"|w| {w:,.0f} rad/s" + ("" if t_w is None else f" at t = {t_w:.4g} s")
+                         + ("" if wr is None else f" ({factor(wr)}x the truth's max)"))
+        if ker is not None:
+            parts.append(f"kinetic energy x{factor(ker)} the truth's max")
+        key = scheme_key(r)
+        gyro = key is not None and key[1] and "explicit gyroscopic" in map_summary(key[0])
+        text = (f"{'gyroscopic ' if gyro else ''}blow-up: {'; '.join(parts)} (beyond "
+                f"{tol.BLOW_UP_OMEGA_FACTOR:g} x |w| or {tol.BLOW_UP_ENERGY_FACTOR:g} x KE from t = {t0:.4g} s)")
+        err = _metric(r, ORIENTATION_ERROR_MAX)
+        if r.get("engine") == REFERENCE_ENGINE:
+            out.append(_finding("reference-blow-up", r, text + ": the scheme's own instability on this case",
+                                size_rad=err, t_s=t0, source=STATE_GROWTH))
+            continue
+        why = _scheme_text(r)
+        if key is not None and key[1]:
+            why += ", which blows up alike: the scheme's own instability, not an engine fault"
+        if capped(r):
+            why = f"{cap_text(r)} takes it away from every map; {why}"
+        if err is not None and err > tol.CONVERGENCE_ORIENTATION_SATURATED_RAD:
+            why += f"{'; ' if why else ''}its orientation error {_e(err)} rad measures the blow-up, not a phase error"
+        out.append(_finding("blow-up", r, text + (f"; {why}" if why else ""), size_rad=err, t_s=t0,
+                            source=STATE_GROWTH))
+    return out
+
+
+def rotation_cap_findings(runs: list[dict]) -> list[Finding]:
+    """Ok engine runs whose |w| dt went beyond the rotation per step their engine caps
+    (``state_growth``, ``Adapter.step_rotation_cap_rad``): the cap, not the scheme, sets their
+    orientation from then on."""
+    out = []
+    for r in runs:
+        if r.get("engine") == REFERENCE_ENGINE or not capped(r) or blew_up(r):  # a blow-up's finding names it
+            continue
+        g = growth(r)
+        why = _scheme_text(r)
+        text = (f"{cap_text(r)}: each step turns the body less than |w| dt, while the angular velocity is "
+                f"kept; its orientation error {_e(_metric(r, ORIENTATION_ERROR_MAX))} rad is the cap's"
+                + (f"; {why}" if why else ""))
+        out.append(_finding("rotation-cap", r, text, size_rad=_metric(r, ORIENTATION_ERROR_MAX),
+                            t_s=finite_or_none(g.get("rotation_cap_t_s")), source=STATE_GROWTH))
+    return out
+
+
+# --- expected orders of convergence ----------------------------------------------------------------
+
+# An observed order (the fitted slope of the orientation error over >= 3 dts) this far from the
+# expected one is a finding.  Measured on the bundled convergence cases, a scheme in its asymptotic
+# range fits within 0.05 of its formal order (first-order maps 0.99-1.01, RK4 4.01-4.02,
+# reference rk4 4.02); a load sampled once a step drives a fourth-order scheme to 1.00 on a body
+# couple: 3 orders off.  Half an order separates the two.
+ORDER_MISMATCH = 0.5
+# The results.json run field saying where inside a step the engine evaluated the case's loads
+# (reference_impl.sampling: "per-stage" | "per-step"; absent in older results).
+PER_STEP = "per-step"
+
+
+@dataclass(frozen=True)
+class ExpectedOrder:
+    """The order an engine run's observed order is set against, on one case or several.
+
+    order : the expected order (1 when ``limited``).  scheme_order : the formal order of the maps.
+    maps : the maps it comes from (reproduced, or the closest when ``closest``).
+    limited : the engine samples the loads once a step (run field ``load_sampling`` "per-step")
+        and the case's loads depend on the state: a multi-stage scheme is then first order.
+    """
+
+    order: int
+    scheme_order: int
+    maps: tuple[str, ...]
+    closest: bool = False
+    limited: bool = False
+    own: bool = False  # a reference run: the order of its own integrator (shown without its name)
+
+    @property
+    def text(self) -> str:
+        """'4 (rkmk4-body)', '1 (closest euler-quat)', '1 (limited by per-step load sampling;
+        rkmk4-body is order 4)'."""
+        names = " = ".join(self.maps) if len(self.maps) <= TIE_NAMES_SHOWN else f"{self.maps[0]} = ..."
+        if self.own:
+            return str(self.order)
+        if self.limited:
+            return f"1 (limited by per-step load sampling; {names} is order {self.scheme_order})"
+        return f"{self.order} ({'closest ' if self.closest else ''}{names})"
+
+
+def state_dependent_loads(cases: dict | None, case: str) -> bool | None:
+    """Whether the case's loads depend on the state (a body couple, a force at a point: results.json
+    ``cases[case]["state_dependent_loads"]``), None when the document does not say."""
+    rec = (cases or {}).get(case)
+    v = rec.get("state_dependent_loads") if isinstance(rec, dict) else None
+    return v if isinstance(v, bool) else None
+
+
+def expected_order(runs: list[dict], state_dependent: bool | None = None) -> ExpectedOrder | None:
+    """The expected order of these runs of one engine run (one case, or several): a reference run's
+    integrator's; an engine run's, the order every one of its ok runs' maps share (the maps it
+    reproduces, reference integrators and engine-equivalent maps alike, or its closest map when it
+    reproduces none and its orientation is not lost), limited to 1 where the engine samples the loads
+    per step on a case whose loads depend on the state.  None when the runs' maps have no common
+    order (or no run was judged)."""
+    ok = [r for r in runs if _ok(r)]
+    if not ok:
+        return None
+    if ok[0].get("engine") == REFERENCE_ENGINE:
+        name = str(ok[0].get("integrator"))
+        o = map_order(name)
+        return None if o is None else ExpectedOrder(o, o, (name,), own=True)
+    common: set[int] | None = None
+    names: list[str] = []
+    closest = False
+    for r in ok:
+        key = scheme_key(r)
+        if key is None or saturated(r):
+            continue
+        tie = scheme_set(r) or (key[0],)
+        closest = closest or not key[1]
+        orders = {o for o in map(map_order, tie) if o is not None}
+        common = orders if common is None else common & orders
+        names += [n for n in tie if n not in names]
+    if not common or len(common) != 1:
+        return None
+    o = common.pop()
+    maps = tuple(n for n in names if map_order(n) == o)
+    limited = o > 1 and bool(state_dependent) and any(r.get("load_sampling") == PER_STEP for r in ok)
+    return ExpectedOrder(1 if limited else o, o, maps, closest, limited)
+
+
+def order_findings(runs: list[dict], convergence: list[dict] | None,
+                   cases: dict | None = None) -> list[Finding]:
+    """Engine runs whose observed order of the orientation error (results.json ``convergence``) is
+    more than ORDER_MISMATCH from the expected one (:func:`expected_order` over their runs of the
+    case): a scheme that is not the one it reproduces in its asymptotic range, or a load sampling
+    the map does not model."""
+    out = []
+    for e in convergence or []:
+        if not isinstance(e, dict) or e.get("metric") != ORIENTATION_ERROR_MAX or e.get("engine") == REFERENCE_ENGINE:
+            continue
+        p = finite_or_none(e.get("order"))
+        if p is None:
+            continue
+        lab = label(e)
+        rs = [r for r in runs if r.get("case") == e.get("case") and label(r) == lab]
+        exp = expected_order(rs, state_dependent_loads(cases, str(e.get("case"))))
+        if exp is None or abs(p - exp.order) <= ORDER_MISMATCH:
+            continue
+        out.append(Finding(KINDS["order"][0], "order", str(e.get("case")), None, lab,
+                           str(e.get("engine", "")),
+                           f"observed order {p:.2f} of the orientation error over dt = "
+                           f"{', '.join(format(d, 'g') for d in e.get('fitted_dts') or e.get('dts') or [])} s, "
+                           f"expected {exp.text}", source="convergence"))
+    return out
+
+
 def no_map_findings(runs: list[dict]) -> list[Finding]:
     """Runs that reproduce no reference map: the closest, its distance and round-off level."""
     out = []
@@ -466,8 +715,17 @@ def no_map_findings(runs: list[dict]) -> list[Finding]:
         key = scheme_key(r)
         if key is None or key[1]:
             continue
+        if blew_up(r):  # its blow-up finding says what identification says
+            continue
         name = key[0]
         d, level, ratio = map_distance(r, name), map_level(r, name), map_ratio(r, name)
+        cause = f"; cause: {cap_text(r)}" if capped(r) else ""
+        if saturated(r):  # before undecidable: no closest map of a lost orientation is named
+            out.append(_finding("no-map", r, f"reproduces no map, and its orientation is lost: every map is "
+                                             f"{_e(d)} rad or more away (beyond "
+                                             f"{tol.CONVERGENCE_ORIENTATION_SATURATED_RAD:g} rad no distance "
+                                             f"ranks a scheme){cause}", size_rad=d, source="matches_reference"))
+            continue
         if identification.verdict(_match(r)) == identification.UNDECIDABLE:
             maps = [x for x in (_match(r).get("undecidable") or []) if isinstance(x, str)]
             out.append(_finding("undecidable", r, f"undecidable here: {', '.join(maps) or 'the maps near it'} "
@@ -478,7 +736,7 @@ def no_map_findings(runs: list[dict]) -> list[Finding]:
             continue
         out.append(_finding("no-map", r, f"reproduces no map; closest {name} at {_e(d)} rad"
                                          f"{'' if ratio is None else f', {ratio:.2g} x its round-off level'}"
-                                         f"{'' if level is None else f' ({_e(level)} rad)'}",
+                                         f"{'' if level is None else f' ({_e(level)} rad)'}{cause}",
                             size_rad=d, source="matches_reference"))
     return out
 
@@ -541,8 +799,9 @@ def switch_findings(runs: list[dict]) -> list[Finding]:
         for r in rs:
             key = scheme_key(r)
             if key[1] and best not in scheme_set(r):
+                cause = f"; cause: {cap_text(r)}" if capped(r) else ""
                 out.append(_finding("scheme-switch", r, f"reproduces {key[0]} here; {n} of its {total} runs "
-                                                        f"reproduce {best}", size_rad=map_distance(r, best),
+                                                        f"reproduce {best}{cause}", size_rad=map_distance(r, best),
                                     source="matches_reference"))
     return out
 
@@ -558,7 +817,7 @@ def outlier_findings(runs: list[dict], trajectory: TrajectoryOf | None = None) -
             groups.setdefault((r["case"], float(r["dt"]), _precision(r)), []).append(r)
     for (case, dt, precision), rs in groups.items():
         for r in rs:
-            if r.get("engine") == REFERENCE_ENGINE:
+            if r.get("engine") == REFERENCE_ENGINE or blew_up(r):  # a blow-up's finding gives its error
                 continue
             order = run_order(r)
             peers = [p for p in rs if p.get("engine") not in (r.get("engine"), REFERENCE_ENGINE)]
@@ -579,11 +838,15 @@ def outlier_findings(runs: list[dict], trajectory: TrajectoryOf | None = None) -
                 t, e = _error_series(traj)
                 t0 = _first_time(t, e, OUTLIER_FACTOR * base)
             key = scheme_key(r)
-            if key is None:
+            if capped(r):  # the mechanism, then the map it happens to reproduce with it
+                why = f"cause: {cap_text(r)}" + (f"; it reproduces {key[0]} here" if key and key[1] else "")
+            elif key is None:
                 why = "no scheme identified"
             elif key[1]:
                 summary = map_summary(key[0])
                 why = f"it reproduces {key[0]}" + (f": {summary}" if summary else "")
+            elif saturated(r):
+                why = "its orientation is lost (every map is as far: no distance ranks a scheme)"
             else:
                 why = f"reproduces no map (closest {key[0]})"
             floored = "" if median >= base else f", floored at the truth's accuracy {base:g} rad"
@@ -630,14 +893,20 @@ def _by_case(runs: list[dict]) -> dict[str, list[dict]]:
     return out
 
 
-def find(runs: list[dict], trajectory: TrajectoryOf | None = None) -> list[Finding]:
+def find(runs: list[dict], trajectory: TrajectoryOf | None = None, convergence: list[dict] | None = None,
+         cases: dict | None = None) -> list[Finding]:
     """Every finding of a results document's runs, most severe first, then by kind, case (in run
     order), dt (coarsest first) and run.  A run that is an ``outlier`` is not also listed as a
-    ``scheme-switch`` (its outlier finding names the map it reproduces)."""
-    found = (status_findings(runs) + no_map_findings(runs) + disagreement_findings(runs, trajectory)
-             + outlier_findings(runs, trajectory) + vs_engine_findings(runs))
+    ``scheme-switch`` (its outlier finding names the map it reproduces) nor as a ``rotation-cap``
+    (its outlier finding names the cap).  ``convergence`` (results.json's fitted orders) and
+    ``cases`` (results.json ``cases``): the ``order`` findings, none without them."""
+    found = (status_findings(runs) + blow_up_findings(runs) + no_map_findings(runs)
+             + disagreement_findings(runs, trajectory) + outlier_findings(runs, trajectory)
+             + vs_engine_findings(runs) + order_findings(runs, convergence, cases))
+
     outliers = {(f.case, f.dt, f.label) for f in found if f.kind == "outlier"}
-    found += [f for f in switch_findings(runs) if (f.case, f.dt, f.label) not in outliers]
+    found += [f for f in switch_findings(runs) + rotation_cap_findings(runs)
+              if (f.case, f.dt, f.label) not in outliers]
     cases = {c: i for i, c in enumerate(dict.fromkeys(r["case"] for r in runs))}
     kinds = {k: i for i, k in enumerate(KINDS)}
     found.sort(key=lambda f: (SEVERITIES.index(f.severity), kinds[f.kind], cases.get(f.case, -1),
@@ -696,6 +965,7 @@ def numbers(f: Finding) -> str:
 
 # Kinds whose finding points at the engine's conventions (a trap or scheme of that engine).
 CONVENTION_KINDS = ("outlier", "no-map", "scheme-switch", "same-map-disagreement", "diverged", "failed",
+                    "rotation-cap", "blow-up", "order",
                     "vs-engine")
 
 
@@ -737,9 +1007,12 @@ BETWEEN_NOTE = ("Between groups: the largest angle between the final orientation
 FINDINGS_NOTE = ("Computed from the runs (nothing is written by hand per engine): a run reproducing no map, "
                  "runs of one map that disagree, an orientation error far above the other engines' "
                  "(x{:g} the median of the runs of the same or lower order at that case and dt), a run "
-                 "that reproduces another map on one case, ported engines against their original, and runs "
+                 "that reproduces another map on one case, ported engines against their original, a |w| or "
+                 "kinetic energy that blew up beyond {:g}x / {:g}x the truth's, a rotation per step beyond "
+                 "the engine's cap, an observed order more than {:g} from the expected one, and runs "
                  "that failed, diverged or were skipped.  Each names the results field that raised it "
-                 "and links to the run's plots.").format(OUTLIER_FACTOR)
+                 "and links to the run's plots.").format(OUTLIER_FACTOR, tol.BLOW_UP_OMEGA_FACTOR,
+                                                          tol.BLOW_UP_ENERGY_FACTOR, ORDER_MISMATCH)
 NO_FINDINGS = ("No finding: every engine run reproduces a reference map, runs of one map agree, no error "
                "stands out, and every run finished.")
 

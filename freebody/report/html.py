@@ -124,7 +124,7 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
     runs = doc.get("runs") or []
     cases = rd.by_case(runs)
     if found is None:
-        found = fd.find(runs)
+        found = fd.find(runs, convergence=convergence, cases=doc.get("cases"))
     p = _head_html(doc, runs, cases, source)
     p += _findings_html(found, runs, comparison)
     if comparison is not None:
@@ -276,7 +276,7 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
              "at order pi or at the truth's accuracy floor, so no order is meaningful). Colour: the engine "
              "(colour-blind safe, black: the reference engine); line style and marker: its integrator.</p>")
     p.append(img(figures.get("convergence"), "convergence"))
-    columns, rows = rd.observed_orders(convergence or [], runs)
+    columns, rows = rd.observed_orders(convergence or [], runs, doc.get("cases"))
     if rows:
         p.append("<h3>Observed order of convergence per engine run</h3>"
                  f'<p class="note">{escape(md.ORDER_NOTE)}</p>' + table(columns, rows))

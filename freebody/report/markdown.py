@@ -69,8 +69,12 @@ ORDER_NOTE = ("Each case: the observed order p of the orientation error / of the
               "(error ~ dt^p, least squares on log-log over the time steps inside the fit range; sat.: "
               "saturated, -: no order). Worst fit rms: the largest RMS residual of those fits in decades "
               "(about 0.01: the errors follow one power law; 0.05 and more: the slope changes across the "
-              "time steps). Expected p: a reference integrator's formal order, or that of the reference "
-              "map every run of the engine run on these cases reproduces (-: none does).")
+              "time steps). Expected p: a reference integrator's formal order, or that of the map every "
+              "run of the engine run on these cases reproduces (reference integrators and "
+              "engine-equivalent maps alike; 'closest': it reproduces none, the closest map's), 1 where "
+              "the engine samples the loads once a step on a case whose loads turn with the body "
+              "('limited by per-step load sampling': not the engine's order); -: the maps' orders "
+              "differ or none is known.")
 
 
 def convergence_rows(entries: list[dict]) -> list[tuple]:
@@ -87,9 +91,10 @@ def convergence_rows(entries: list[dict]) -> list[tuple]:
     return rows
 
 
-def observed_order_lines(convergence: list[dict], runs: list[dict]) -> list[str]:
-    """The front page's "Observed order" section (nothing when no case ran at 3 or more dts)."""
-    columns, rows = rd.observed_orders(convergence, runs)
+def observed_order_lines(convergence: list[dict], runs: list[dict], cases: dict | None = None) -> list[str]:
+    """The front page's "Observed order" section (nothing when no case ran at 3 or more dts);
+    ``cases``: results.json ``cases`` (whether a case's loads depend on the state)."""
+    columns, rows = rd.observed_orders(convergence, runs, cases)
     if not rows:
         return []
     return ["## Observed order of convergence per engine run", "", ORDER_NOTE, "", md_table(columns, rows), ""]
@@ -302,7 +307,7 @@ def front_matter(doc: dict, source: str, found: list[fd.Finding] | None = None, 
     then the overview tables."""
     runs = doc.get("runs") or []
     if found is None:
-        found = fd.find(runs)
+        found = fd.find(runs, convergence=doc.get("convergence"), cases=doc.get("cases"))
     out = header_lines(doc, source) + findings_lines(found, runs, comparison)
     if comparison is not None:
         out += compare_lines(comparison)
@@ -358,7 +363,8 @@ def render_markdown(doc: dict, convergence: list[dict], physics: dict[str, rd.Ca
     name -> :func:`report_data.pairwise` (computed here when not given); ``found``: the findings
     (:func:`freebody.report.findings.find`, computed here without trajectories when not given);
     ``comparison``: a :class:`freebody.results.compare.Comparison` with a baseline, or None."""
-    lines = front_matter(doc, source, found, comparison) + observed_order_lines(convergence, doc.get("runs") or [])
+    lines = front_matter(doc, source, found, comparison) + observed_order_lines(convergence, doc.get("runs") or [],
+                                                                                   doc.get("cases"))
     for case, runs in rd.by_case(doc.get("runs") or []).items():
         lines += case_section(case, runs, convergence, physics.get(case), out_dir, (pairs or {}).get(case))
     return "\n".join(lines).rstrip() + "\n"

@@ -79,7 +79,7 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     runs = doc.get("runs") or []
     physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}
     pairs = {c: rd.pairwise(rs, physics[c], out_dir) for c, rs in rd.by_case(runs).items()}
-    found = fd.find(runs, rd.trajectory_reader(out_dir))
+    found = fd.find(runs, rd.trajectory_reader(out_dir), conv, doc.get("cases"))
     comparison = compare_with(baseline, doc) if baseline is not None else None
     md_path = out_dir / "report.md"
     write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs, found=found,

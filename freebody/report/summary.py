@@ -10,8 +10,10 @@ from pathlib import Path
 
 from ..errors import printable
 from ..run.progress import terminal_width
+from .. import tolerances as tol
+from ..numbers import finite_or_none
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX,
-                           POSITION_ERROR_MAX)
+                           POSITION_ERROR_MAX, STATE_GROWTH)
 from ..run.records import STATUSES, Status
 from ..results import identification
 
@@ -46,11 +48,15 @@ def summary_table(runs: list[dict]) -> str:
         m = r.get("metrics") or {}
         match = r.get("matches_reference")
         if match:
+            d = finite_or_none(match.get("max_orientation_diff_rad"))
             shown = reproduced_text(match, r.get("precision"))
-            if not shown and identification.verdict(match) == identification.UNDECIDABLE:
-                shown = f"undecidable here (closest {match.get('closest')})"
-            shown = shown or f"none (closest {match.get('closest')})"
-            repro = f"{shown} {fmt(match.get('max_orientation_diff_rad'), '.1e')}"
+            if not shown and (d is None or d > tol.CONVERGENCE_ORIENTATION_SATURATED_RAD):
+                repro = f"none (orientation lost: every map >= {fmt(d, '.1e')})"  # no closest map means anything
+            elif not shown and identification.verdict(match) == identification.UNDECIDABLE:
+                repro = f"undecidable here (closest {match.get('closest')}) {fmt(d, '.1e')}"
+            else:
+                closest = match.get("closest")
+                repro = f"{shown or f'none (closest {closest})'} {fmt(d, '.1e')}"
         else:
             repro = ""
         vs = r.get("vs_engine")
@@ -90,6 +96,14 @@ STATUS_ORDER = (Status.FAILED, Status.DIVERGED, Status.SKIPPED)  # worst first
 MARKERS = {Status.FAILED: "F", Status.DIVERGED: "d", Status.SKIPPED: "s"}  # a cell with some runs not ok
 NONE_OK = {Status.FAILED: "FAIL", Status.DIVERGED: "div", Status.SKIPPED: "skip"}  # a cell with no run ok
 MARKER_TEXT = {Status.FAILED: "a run failed", Status.DIVERGED: "a run diverged", Status.SKIPPED: "a run skipped"}
+# Markers of ok runs whose state says more than their orientation error (results.json state_growth):
+# a blow-up (its orientation error is the blow-up's, not a phase error) and a rotation per step
+# beyond the engine's cap; after the status marker.
+GROWTH_MARKERS = {"blow_up_t_s": "b", "rotation_cap_t_s": "c"}
+GROWTH_MARKER_TEXT = {
+    "b": f"blow-up (|w| > {tol.BLOW_UP_OMEGA_FACTOR:g}x or KE > {tol.BLOW_UP_ENERGY_FACTOR:g}x the truth's)",
+    "c": "|w| dt beyond the engine's rotation cap a step",
+}
 _DIVERGED_AT = re.compile(r"^diverged at t = \S+ s: ?")  # the time of judge.outcome's messages
 
 
@@ -124,7 +138,15 @@ def _cell(runs: list[dict], style: str) -> tuple[str, str]:
     errors = [x for r in runs if r["status"] == Status.OK
               for x in [(r.get("metrics") or {}).get(ORIENTATION_ERROR_MAX)] if x is not None]
     value = _number(max(errors), style) if errors else "-"
-    return value, MARKERS.get(worst_other, "")
+    return value, MARKERS.get(worst_other, "") + "".join(
+        m for key, m in GROWTH_MARKERS.items() if any(_grew(r, key) for r in runs))
+
+
+def _grew(run: dict, key: str) -> bool:
+    """Whether an ok run's ``state_growth`` has a time for ``key`` (a blow-up, the rotation cap
+    reached; absent in older results: False)."""
+    g = run.get(STATE_GROWTH)
+    return run["status"] == Status.OK and isinstance(g, dict) and finite_or_none(g.get(key)) is not None
 
 
 def _clip(text: str, width: int, mark: str = "...") -> str:
@@ -242,8 +264,9 @@ def summary_matrix(runs: list[dict], width: int = SUMMARY_WIDTH) -> list[str]:
                 block = []
             block.append(col)
         lines += _matrix_block(cases, names, block, cells, name_w, sep, _widths(cells, cases, block, sep, False))
-    used = {m for (value, m) in cells.values() if m}
+    used = {c for (value, m) in cells.values() for c in m}
     legend = [f"{m}: {MARKER_TEXT[s]}" for s, m in MARKERS.items() if m in used]
+    legend += [f"{m}: {text}" for m, text in GROWTH_MARKER_TEXT.items() if m in used]
     if any(value in NONE_OK.values() for value, _ in cells.values()):
         legend.append("FAIL/div/skip: no run ok")
     if hidden:
