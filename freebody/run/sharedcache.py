@@ -25,7 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from ..reference_impl.conventions import Trajectory
+from ..reference_impl.engine_maps import map_load_sampling
 from ..reference_impl.integrators import INTEGRATORS
+from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
 from ..results.io import write_npz_atomic
 from .judge import SCHEME_CANDIDATES, TruthCache
 from .records import RunOutput, RunSpec, Status
@@ -99,33 +101,40 @@ class GroupTruthCache(TruthCache):
         return self._lookup(problem, dt, steps, integrator,
                             lambda: super(GroupTruthCache, self).reference(problem, integrator, dt, steps))
 
-    def orientation(self, problem, integrator: str, dt: float, steps: int) -> np.ndarray:
+    def orientation(self, problem, integrator: str, dt: float, steps: int,
+                    load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
         """The map's q (steps + 1, 4) only: from an offered reference run, the store or computed
-        (then its whole trajectory goes to the store, for the other workers)."""
-        full = (id(problem), float(dt), int(steps), integrator)
+        (then its whole trajectory goes to the store, for the other workers); ``load_sampling``:
+        the variant of a multi-stage engine map (:func:`map_load_sampling`)."""
+        load_sampling = map_load_sampling(problem, integrator, load_sampling)
+        name = integrator if load_sampling == LOAD_SAMPLING_PER_STAGE else f"{integrator}.{load_sampling}"
+        full = (id(problem), float(dt), int(steps), name)
         if full in self._memo:  # the map's whole trajectory, computed by reference()
             return self._memo[full].quaternion_wxyz
-        key = full[:3] + (f"{integrator}.q",)
+        key = full[:3] + (f"{name}.q",)
         if key not in self._memo:
-            path = self._path(problem, dt, steps, integrator)
+            path = self._path(problem, dt, steps, name)
             q = _load_array(path, "quaternion_wxyz") if path is not None and path.exists() else None
             if q is None:
-                tr = self._simulate_map(problem, integrator, dt, steps)
+                tr = self._simulate_map(problem, integrator, dt, steps, load_sampling)
                 if path is not None:
                     _save(path, tr)
                 q = tr.quaternion_wxyz
             self._memo[key] = q
         return self._memo[key]
 
-    def roundoff(self, problem, integrator: str, dt: float, steps: int, precision: str = "float64") -> np.ndarray:
-        tag = f"{integrator}.roundoff-{precision}"
+    def roundoff(self, problem, integrator: str, dt: float, steps: int, precision: str = "float64",
+                 load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
+        load_sampling = map_load_sampling(problem, integrator, load_sampling)
+        sampled = "" if load_sampling == LOAD_SAMPLING_PER_STAGE else f".{load_sampling}"
+        tag = f"{integrator}{sampled}.roundoff-{precision}"
         key = (id(problem), float(dt), int(steps), tag)
         if key in self._memo:
             return self._memo[key]
         path = self._path(problem, dt, steps, tag)
         spread = _load_array(path, "spread") if path is not None and path.exists() else None
         if spread is None:
-            spread = super().roundoff(problem, integrator, dt, steps, precision)
+            spread = super().roundoff(problem, integrator, dt, steps, precision, load_sampling)
             if path is not None:
                 write_npz_atomic(path, {"spread": spread}, compressed=False)
         self._memo[key] = spread
