@@ -31,10 +31,11 @@ DIVERGENCE_VELOCITY_FLOOR_M_S = 1.0  # |v| scale of a body at rest (truth |v| = 
 # A blow-up (a finding, the run stays ok: run/metrics.GrowthStats, report/findings.py "blow-up"): an
 # ok run whose max |w| exceeds BLOW_UP_OMEGA_FACTOR x the truth's max |w| (floored as above), or whose
 # max kinetic energy exceeds BLOW_UP_ENERGY_FACTOR x the truth's max KE (floored as above).  Measured
-# on the bundled cases at their default dts (MuJoCo 4.0.0, PyBullet 3.2.7, DART 6.20, the reference
-# maps): every bounded run is within 2.4x of the truth's max |w| and 2.1x of its max KE; the runs
-# beyond are blow-ups, nothing in between (3x to 15x): the explicit gyroscopic term on thin_rod at
-# dt = 0.01 (engines and map: KE x141 at |w| x2.3, the stiff gyroscopic term's energy blow-up),
+# on the bundled cases at their default dts (MuJoCo 4.0.0, PyBullet 3.2.7, DART 6.20, Drake 1.51,
+# SAPIEN 3, the reference maps; 1161 runs): every bounded run is within 2.4x of the truth's max |w|
+# and 2.1x of its max KE; the runs beyond are blow-ups, nothing in between (3x to 15x): the explicit
+# gyroscopic term on thin_rod at dt = 0.01 (MuJoCo Euler, PyBullet multibody, DART, Drake discrete
+# and semi-explicit-euler, the map: KE x141 at |w| x2.3, the stiff gyroscopic term's energy blow-up),
 # fully explicit Euler (lie-euler, euler-quat, euler-matrix-gs) on thin_rod (|w| x61-296, KE
 # x71-1.6e3) and on flat_plate at dt = 0.01 (|w| x16, KE x32-34); the explicit-gyro engines on a thin
 # disk spun at 20 rad/s, tilted 30 deg, dt = 0.01, 5 s: |w| x797, KE x6.5e3 (|w| beyond 20x from
