@@ -116,6 +116,35 @@ def test_a_tie_that_still_holds_the_map_is_no_scheme_change(runs, baseline, tmp_
     assert main(["compare", str(baseline), str(_edited(runs["long"], tmp_path, tie))]) == 0
 
 
+def test_an_undecidable_run_is_no_scheme_change(runs, baseline, tmp_path):
+    """A run whose maps identify nothing on its case (verdict undecidable) has no scheme to compare."""
+    def undecided(doc):
+        for r in _mujoco_euler_runs(doc):
+            m = r["matches_reference"]
+            r["matches_reference"] = {**m, "verdict": "undecidable", "integrator": None, "indistinguishable": [],
+                                      "undecidable": [m["integrator"]]}
+    assert main(["compare", str(baseline), str(_edited(runs["long"], tmp_path, undecided))]) == 0
+
+
+def test_closest_is_a_scheme_change_and_results_without_a_verdict_read(runs, baseline, tmp_path, capsys):
+    """From 'reproduces' to 'closest' (no map reproduced) the scheme changed; results written before
+    the verdict key (derived from integrator / tie / closest) compare as they did."""
+    def closest(doc):
+        for r in _mujoco_euler_runs(doc):
+            m = r["matches_reference"]
+            assert m["verdict"] in ("reproduces", "indistinguishable")
+            r["matches_reference"] = {**m, "verdict": "closest", "integrator": None, "indistinguishable": []}
+    assert main(["compare", str(baseline), str(_edited(runs["long"], tmp_path, closest))]) == 1
+    assert "SCHEME CHANGED" in capsys.readouterr().out
+
+    def old(doc):
+        for r in doc["runs"]:
+            for key in ("verdict", "undecidable"):
+                (r.get("matches_reference") or {}).pop(key, None)
+    assert main(["compare", str(baseline), str(_edited(runs["long"], tmp_path, old, "old.json"))]) == 0
+    assert main(["compare", str(_edited(runs["long"], tmp_path, old, "old.json")), str(baseline)]) == 0
+
+
 def test_strict_fails_on_improvements(runs, baseline, tmp_path):
     def better(doc):
         doc["runs"][0]["metrics"]["orientation_error_max_rad"] /= 2
