@@ -20,7 +20,7 @@ from freebody.reference_impl.integrators import INTEGRATORS
 from freebody.run.convergence import MIN_POINTS, fit_orders
 from freebody.run.metrics import ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX
 
-CASES = ("convergence_tumbling", "convergence_body_torque")
+CASES = ("convergence_tumbling", "convergence_body_torque", "convergence_body_point_force")
 # Fitted orientation orders of the reference maps on these cases (measured): euler-quat 1.00-1.04,
 # rk4 4.02-4.03.  Off by more than 0.1, the time steps have left the asymptotic range (a saturated
 # or floor-bound point, a horizon past a flip) or the map changed.
@@ -53,7 +53,9 @@ def test_the_convergence_cases_are_bundled_with_four_halving_time_steps():
         pb = load_case(name)
         assert pb.dts == (0.04, 0.02, 0.01, 0.005) and pb.duration == 1.0
         assert "order of convergence" in pb.description
-    assert load_case("convergence_body_torque").loads, "the torque case must have a load"
+    assert load_case("convergence_body_torque").loads[0].body_torque.any(), "the torque case must have a body couple"
+    force = load_case("convergence_body_point_force").loads[0]
+    assert force.body_point is not None and force.body_point.any(), "a force off the COM, at a body point"
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -131,19 +133,19 @@ def _engine_orientation_order(engine: str, integrator: str, case: str, precision
 
 
 @pytest.mark.parametrize("physics", [pytest.param("mujoco", marks=engine_marks("mujoco"))])
-def test_mujoco_rk4_order_depends_on_version_and_on_loads(physics):
+def test_mujoco_rk4_order_depends_on_version_not_on_loads(physics):
     """Issue 16: MuJoCo RK4 is fourth order from 4.0 on without loads (second order in 3.1-3.17, not
-    measured here); with a body-fixed couple it is first order: the adapter writes the couple's
-    world value R tau_b into xfrc_applied once per step, and RK4's stages hold it."""
+    measured here).  Issue 26: with a body-fixed couple or a force at a body point it stays fourth
+    order: the loads reach every RK4 stage (qfrc_applied, the per-stage control callback).  Before,
+    the world wrench of the step's start held over the stages made it first order (1.01)."""
     import mujoco
 
     if int(mujoco.__version__.split(".")[0]) < 4:
         pytest.skip(f"MuJoCo {mujoco.__version__}: the orders were measured on 4.0")
-    free = _engine_orientation_order(physics, "RK4", "convergence_tumbling")
-    assert free["order"] is not None, free["reason"]
-    assert abs(free["order"] - 4) < ORDER_TOLERANCE, (mujoco.__version__, free["order"])
-    loaded = _engine_orientation_order(physics, "RK4", "convergence_body_torque")
-    assert abs(loaded["order"] - 1) < ORDER_TOLERANCE, loaded["order"]
+    for case in ("convergence_tumbling", "convergence_body_torque", "convergence_body_point_force"):
+        fit = _engine_orientation_order(physics, "RK4", case)
+        assert fit["order"] is not None, fit["reason"]
+        assert abs(fit["order"] - 4) < ORDER_TOLERANCE, (mujoco.__version__, case, fit["order"], fit["errors"])
 
 
 @pytest.mark.parametrize("physics", [pytest.param("mjx", marks=engine_marks("mjx"))])
