@@ -162,6 +162,13 @@ class Adapter(ABC):
 
     # --- optional, with defaults ---------------------------------------------------------------
     @classmethod
+    def load_sampling_text(cls) -> str:
+        """The load sampling in one line, as ``freebody conventions`` and reports show it: the
+        rule, what it means, and how this engine does it (``load_sampling_note``)."""
+        text = f"{cls.load_sampling}: {LOAD_SAMPLINGS[cls.load_sampling]}"
+        return f"{text}; {cls.load_sampling_note}" if cls.load_sampling_note else text
+
+    @classmethod
     def run_load_sampling(cls, problem: Problem) -> str | None:
         """This engine's load sampling on ``problem`` (None when the case has no loads); default:
         the declared ``load_sampling``.  An engine that samples some kinds of load per stage and

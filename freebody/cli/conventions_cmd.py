@@ -32,7 +32,7 @@ def run(args) -> int:
             failed = True
             continue
         print(f"== {engine} {version}")
-        rows = list(cls.conventions.items())
+        rows = [*cls.conventions.items(), ("load sampling", cls.load_sampling_text())]
         w = max((len(k) for k, _ in rows), default=0)
         for k, v in rows:
             print(f"  {k:<{w}}  {v}")

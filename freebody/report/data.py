@@ -55,10 +55,18 @@ def wall_per_simulated_s(run: dict) -> float | None:
 
 
 def reproduces(run: dict) -> str:
-    """The reference map this engine run reproduces ('' for the reference engine / no check)."""
+    """The reference map this engine run reproduces ('' for the reference engine / no check), and
+    for a loaded run where inside a step its engine evaluated the loads (``load_sampling``: the
+    maps it was compared with are that variant)."""
     m = run.get("matches_reference")
     if not isinstance(m, dict):
         return ""
+    text = _reproduces(run, m)
+    sampling = run.get("load_sampling")
+    return f"{text} [loads {sampling}]" if sampling and text else text
+
+
+def _reproduces(run: dict, m: dict) -> str:
     if identification.reproduced(m):
         return f"{reproduced_text(m, run.get('precision'))} ({num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
     if identification.verdict(m) == identification.UNDECIDABLE:
@@ -454,6 +462,8 @@ def engine_conventions(doc: dict) -> list[tuple[str, str, str]]:
             with capture_output():
                 cls = load_adapter(base_engine(engine))
             rows = list((getattr(cls, "conventions", None) or {}).items())
+            if hasattr(cls, "load_sampling_text"):  # where inside a step the loads are evaluated
+                rows.append(("load sampling", cls.load_sampling_text()))
         except Exception:
             out.append((engine, "-", "not installed here (or run in an isolated environment): see "
                                      f"freebody conventions --engine {engine}"))
