@@ -312,6 +312,13 @@ def test_the_thin_disk_blow_up_is_a_finding_for_the_explicit_gyro_engines(disk_r
         assert "closest" not in f.text, f.text
     text = " ".join(f.text for f in found if f.kind == "blow-up")
     assert "|w| " in text and "rad/s" in text and "kinetic energy x" in text
+    import re
+
+    from freebody.report.markdown import front_matter
+    from freebody.report.summary import summary_table
+
+    pages = "\n".join(front_matter({"runs": disk_runs}, "test")) + summary_table(disk_runs)
+    assert not re.findall(r"closest [a-z0-9]+-[a-z0-9-]+", pages)  # nor on the verdict page and tables
     cells = terminal_summary(disk_runs).splitlines()
     row = next(ln for ln in cells if ln.startswith("thin_disk"))
     assert row.count("b") == 3, row  # one blow-up marker per engine column

@@ -250,6 +250,27 @@ def test_matrix_cells_worst_error_markers_and_words():
                      "F: a run failed; d: a run diverged; FAIL/div/skip: no run ok"]
 
 
+def test_a_blow_up_and_a_rotation_cap_are_marked_apart_from_a_saturated_phase_error():
+    """Three cells at ~3.1 rad: a phase error (no marker), a blow-up (b), a blow-up past the engine's
+    rotation cap (b and c), each marker with its legend; a diverged run's growth is not marked."""
+    grown = {"blow_up_t_s": 2.51, "omega_ratio": 797.0, "kinetic_energy_ratio": 6.5e3}
+    runs = [_run("disk", "e1", "implicit", err=3.13),
+            {**_run("disk", "e2", "euler", err=3.11), "state_growth": grown},
+            {**_run("disk", "e3", "multibody", err=3.12),
+             "state_growth": {**grown, "step_rotation_cap_rad": 0.785, "rotation_cap_t_s": 1.39}},
+            {**_run("disk", "e4", "x", status="diverged"), "state_growth": grown},
+            {**_run("disk", "e4", "y", err=3.1), "state_growth": {"blow_up_t_s": None}}]
+    lines = summary_matrix(runs)
+    row = next(ln for ln in lines if ln.startswith("disk"))
+    assert row.split() == ["disk", "3.1e+00", "3.1e+00b", "3.1e+00bc", "3.1e+00d"], row
+    legend = "; ".join(lines[lines.index(row) + 1:])
+    assert "b: blow-up (|w| > 20x or KE > 10x the truth's)" in legend
+    assert "c: |w| dt beyond the engine's rotation cap a step" in legend
+    # results written before state_growth: no marker, no legend
+    old = [_run("disk", "e1", "implicit", err=3.13), _run("disk", "e2", "euler", err=3.11)]
+    assert not any(ln.startswith(("b:", "c:")) for ln in summary_matrix(old))
+
+
 def test_an_engine_with_every_run_skipped_gets_no_column_and_precision_makes_a_column():
     runs = [_run("a", "ref", "rk4"), _run("a", "gone", "*", status="skipped", message="not installed"),
             _run("a", "mjx", "Euler", precision="float32", err=2e-3), _run("a", "mjx", "Euler", err=1e-4)]

@@ -69,6 +69,10 @@ def reproduces(run: dict) -> str:
 def _reproduces(run: dict, m: dict) -> str:
     if identification.reproduced(m):
         return f"{reproduced_text(m, run.get('precision'))} ({num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+    from .findings import saturated
+
+    if saturated(run):  # every map is as far: no closest map is named
+        return f"none (orientation lost: every map >= {num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
     if identification.verdict(m) == identification.UNDECIDABLE:
         return identification.text(m)
     if m.get("closest"):
@@ -384,7 +388,7 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, str, str, flo
     of its ok runs reproduce (or 'none'), 'n of N', the runs that reproduce another map or none
     ('case dt: map', with the case's name), the largest distance (rad) of its runs from the maps
     they reproduce or come closest to)."""
-    from .findings import _majority_map, scheme_key, scheme_set
+    from .findings import _majority_map, none_text, saturated, scheme_key, scheme_set
 
     by_label: dict[str, list[dict]] = {}
     for r in runs:
@@ -397,8 +401,9 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, str, str, flo
         for r in rs:
             if best is None or best not in scheme_set(r):
                 name, reproduced = scheme_key(r)
-                undecided = identification.verdict(r.get("matches_reference")) == identification.UNDECIDABLE
-                other.append(f"{r['case']} {float(r['dt']):g}: {name if reproduced else f'undecidable (closest {name})' if undecided else f'none (closest {name})'}")
+                undecided = identification.verdict(r.get("matches_reference")) == identification.UNDECIDABLE \
+                    and not saturated(r)
+                other.append(f"{r['case']} {float(r['dt']):g}: {name if reproduced else f'undecidable (closest {name})' if undecided else none_text(r, name)}")
         shown = best or "none"
         if best is not None:  # maps indistinguishable from it on every run that reproduces it: a tie
             sets = [scheme_set(r) for r in rs if best in scheme_set(r)]

@@ -270,6 +270,8 @@ class SchemeGroup:
         """The group's map: 'X', 'X = Y' (a tie of two), 'X = N more' (a larger tie, see
         :attr:`tie_text`), or 'none (closest X)'."""
         if not self.reproduced:
+            if self.members and all(saturated(m.run) for m in self.members):
+                return "none (orientation lost)"  # every map is as far: no closest map is named
             return f"none (closest {self.scheme})"
         if len(self.tie) > TIE_NAMES_SHOWN:
             return f"{self.scheme} = {len(self.tie) - 1} more"
@@ -392,7 +394,7 @@ def pair_relation(a: dict, b: dict) -> str:
     common = [x for x in sets[0] if x in sets[1]]
     if ra and rb and common:
         return f"same map ({common[0]})"
-    text = [n if r else f"none, closest {n}" for n, r in names]
+    text = [n if r else none_text(run, n, ", ") for (n, r), run in zip(names, (a, b))]
     return f"differs by scheme ({text[0]} vs {text[1]})"
 
 
@@ -522,6 +524,15 @@ def saturated(run: dict) -> bool:
         return False
     d = map_distance(run, key[0])
     return d is None or d > tol.CONVERGENCE_ORIENTATION_SATURATED_RAD
+
+
+def none_text(run: dict, name: str | None = None, sep: str = " (") -> str:
+    """How a run that reproduces no map is shown: 'none (closest X)', or 'none (orientation lost)'
+    when it is :func:`saturated` (no closest map is named for it); ``sep`` ', ' gives 'none, closest X'."""
+    if saturated(run):
+        return f"none{sep}orientation lost" + (")" if sep == " (" else "")
+    name = name if name is not None else (scheme_key(run) or ("?",))[0]
+    return f"none{sep}closest {name}" + (")" if sep == " (" else "")
 
 
 def _scheme_text(run: dict) -> str:
