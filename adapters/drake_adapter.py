@@ -19,7 +19,8 @@ Integrators (freebody's names; default first):
   run's identity: ``rk3-accuracy-1e-6``, ``rk3-accuracy-1e-10``, ``rk5-accuracy-1e-6``,
   ``rk5-accuracy-1e-10``, ``radau3-accuracy-1e-6``, ``radau3-accuracy-1e-10``,
   ``implicit-euler-accuracy-1e-6`` (maximum step dt; samples by ``AdvanceTo(k dt)``; not
-  identified: the accuracy is no error bound, see below).  The slow ones must be opt-in
+  identified: the accuracy is no error bound, and Drake's RK5 retries a rejected step with stale
+  accelerations, see "Error control" below).  The slow ones must be opt-in
   (``opt_in_integrators``, trap check "slow ... opt-in"): ``implicit-euler-accuracy-1e-6`` and
   ``radau3-accuracy-1e-10`` (1.5 and 3 s of wall time per simulated second on a 50 rad/s spin).
   To keep the default suite's time, every implicit and every error-controlled integrator is
@@ -76,6 +77,21 @@ Drake's conventions and what this adapter converts:
   dt, fixed-step mode takes a step of dt and then a second, tiny one (10% of the calls at
   dt = 0.01).  The maximum step is dt (1 + DRAKE_STEP_SLACK): one step per freebody step, of
   (k + 1) dt - k dt (exact, Sterbenz); ``advance`` checks the integrator's step count.
+- Error control (Drake's, measured with pydrake alone: issue 26 item 11): the target accuracy is a
+  per-step tolerance, and RK5's error control is not monotone in it.  After a rejected trial step
+  ``IntegratorBase::StepOnceErrorControlledAtMost`` restores x0 through a reference taken before
+  the step (``xc.SetFromVector(xc0_save_)``, no state-change notice; ``SetTime`` invalidates only
+  what depends on time), and ``RungeKutta5Integrator`` had evaluated its FSAL derivative at the
+  attempt's end state, so the retry's first stage takes the accelerations (wdot, vdot) of that end
+  state (qdot, xdot are x0's).  Each accepted step after a rejection equals the Dormand-Prince step
+  with those stale accelerations to 1.6e-15 and is 5e-9 off the clean step (accuracy 1e-10); on
+  10 s of dzhanibekov those 23 of 1167 steps carry 99% of the local error: 3.2e-3 rad with Drake's
+  own step sizes, 3.7e-3 through the adapter (maximum step dt, samples at k dt: neither is the
+  cause), while at 1e-4..1e-8 the maximum step dt leaves no rejection and the run is fixed-step
+  rk5's (1.4e-4).  RungeKutta3Integrator marks the state changed before writing its end state and
+  evaluates nothing after, so its retries are clean (errors 2.5e-4, 2.6e-6 rad at 1e-10, 1e-12).
+  The adapter cannot reach inside Drake's step; it names the accuracy in the integrator, reads it
+  back and states this in its conventions.
 - Instability: Drake raises RuntimeError from ``AdvanceTo`` when an error-controlled or implicit
   integrator cannot continue (step size below its minimum, Newton failing at the minimum step):
   the adapter reports that as :class:`EngineDiverged` with the samples up to the last good one.
@@ -300,11 +316,18 @@ class DrakeAdapter(Adapter):
                            "after 10 s of dzhanibekov at dt 0.01, discrete plant); Drake's pose "
                            "read-back normalises and hides it; freebody reads the raw q, reports "
                            "q / |q| and keeps the raw norm (DrakeAdapter.quaternion_norm)",
-        "target accuracy": "an error-controlled integrator's accuracy is a per-step relative "
-                           "tolerance, NOT a bound on the error: on dzhanibekov at dt 0.01 "
-                           "rk5-accuracy-1e-10 is up to 3.7e-3 rad off, worse than "
-                           "rk5-accuracy-1e-6 (1.4e-4, the fixed-step rk5's); fixed-step rk5 at "
-                           "dt 1e-3: 8.5e-10; the accuracy is part of the integrator's name",
+        "target accuracy": "a per-step tolerance, NOT a bound on the error, and for rk5 not "
+                           "monotone, by Drake's doing: RungeKutta5Integrator retries a rejected "
+                           "step with the first stage's accelerations of the rejected attempt's "
+                           "end state (IntegratorBase restores x0 without invalidating the "
+                           "plant's cached dynamics; measured without the adapter, "
+                           "tests/test_drake_adapter.py); those retries (23 of 1167 steps on "
+                           "10 s of dzhanibekov at 1e-10) carry 99% of the local error, so "
+                           "rk5-accuracy-1e-10 is 3.7e-3 rad off at dt 0.01 (Drake alone, no "
+                           "step cap, no samples: 3.2e-3), worse than rk5-accuracy-1e-6 (1.4e-4: "
+                           "no rejection under the maximum step dt, = fixed-step rk5); rk3 is "
+                           "not affected (rk3-accuracy-1e-10 2.5e-4, 1e-12 2.6e-6 rad); the "
+                           "accuracy is part of the integrator's name",
         "fixed-step implicit": "Newton stops at a tolerance from the accuracy in use (Drake's "
                                "default 1e-1 when none is set): implicit-euler, "
                                "velocity-implicit-euler, radau1, radau3 depend on it; freebody "
@@ -548,7 +571,7 @@ class DrakeAdapter(Adapter):
     def trap_checks(cls) -> dict[str, Callable[[], tuple[bool, float | None, float, str]]]:
         return {
             "quaternion norm drift read raw, not hidden": _check_norm_drift,
-            "target accuracy labelled, no error bound": _check_target_accuracy,
+            "target accuracy labelled: no error bound, RK5 retries stale": _check_target_accuracy,
             "velocities written in Drake's [w, v] world layout": _check_velocity_layout,
             "one Drake step per step (time grid slack)": _check_one_step_per_step,
             "slow error-controlled implicit Euler is opt-in": _check_opt_in,
@@ -656,25 +679,39 @@ def _check_norm_drift():
 
 
 def _check_target_accuracy():
-    """rk5-accuracy-1e-10, 4 s of dzhanibekov at dt 0.01 against the truth: the achieved error is
-    far above the requested accuracy; the adapter must run at that accuracy (read back), name it
-    in the run's integrator and say in its conventions that it is no error bound."""
+    """rk5-accuracy-1e-10 and rk5-accuracy-1e-6, 4 s of dzhanibekov at dt 0.01, against the truth:
+    the tighter accuracy is the worse one (Drake's RK5 retries rejected steps with stale
+    accelerations: the conventions' "target accuracy"); the adapter must run at the accuracy
+    (read back), name it in the run's integrator and say in its conventions that it is no error
+    bound and why."""
     dt, steps, name = 0.01, 400, "rk5-accuracy-1e-10"
     pb = _dzhanibekov(steps)
-    adapter = DrakeAdapter(pb, dt, name)
-    try:
-        tr = adapter.simulate(steps)
-        requested = float(adapter._integrator.get_target_accuracy())
-        recorded = adapter.settings.get("target_accuracy", {}).get("set")
-    finally:
-        adapter.close()
-    err = float(np.max(geodesic_angle(tr.quaternion_wxyz, truth_trajectory(pb, dt, steps).quaternion_wxyz)))
-    labelled = "NOT a bound" in DrakeAdapter.conventions.get("target accuracy", "")
-    ok = requested == 1e-10 and recorded == requested and name.endswith("1e-10") and labelled
+    truth = truth_trajectory(pb, dt, steps).quaternion_wxyz
+    errors, rejections, requested, recorded = {}, {}, None, None
+    for run in ("rk5-accuracy-1e-6", name):
+        adapter = DrakeAdapter(pb, dt, run)
+        try:
+            tr = adapter.simulate(steps)
+            rejections[run] = adapter._integrator.get_num_step_shrinkages_from_error_control()
+            if run == name:
+                requested = float(adapter._integrator.get_target_accuracy())
+                recorded = adapter.settings.get("target_accuracy", {}).get("set")
+        finally:
+            adapter.close()
+        errors[run] = float(np.max(geodesic_angle(tr.quaternion_wxyz, truth)))
+    text = DrakeAdapter.conventions.get("target accuracy", "")
+    labelled = "NOT a bound" in text and "rejected" in text
+    err = errors[name]
+    # the trap is live (tighter is worse here): when a Drake release fixes its retries this fails,
+    # and the conventions' text must be measured again
+    live = err > errors["rk5-accuracy-1e-6"]
+    ok = requested == 1e-10 and recorded == requested and name.endswith("1e-10") and labelled and live
     return (ok, err, requested,
-            f"{name}, 4 s of dzhanibekov at dt 0.01: orientation error {err:.1e} rad for a requested "
-            f"accuracy of {requested:g} (read back, recorded: {recorded}); conventions label it "
-            f"no error bound: {labelled}")
+            f"4 s of dzhanibekov at dt 0.01: {name} {err:.1e} rad ({rejections[name]} rejected "
+            f"steps), rk5-accuracy-1e-6 {errors['rk5-accuracy-1e-6']:.1e} "
+            f"({rejections['rk5-accuracy-1e-6']} rejected); "
+            f"accuracy {requested:g} read back, recorded: {recorded}; conventions say it is no error "
+            f"bound and name Drake's stale retries: {labelled}; tighter is worse: {live}")
 
 
 def _check_velocity_layout():

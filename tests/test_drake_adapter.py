@@ -19,9 +19,12 @@ import pytest
 
 pydrake = pytest.importorskip("pydrake", reason="drake not installed (pip install 'freebody[drake]')")
 
-from pydrake.multibody.plant import MultibodyPlant, MultibodyPlantConfig  # noqa: E402
+from pydrake.common.value import AbstractValue  # noqa: E402
+from pydrake.multibody.math import SpatialForce  # noqa: E402
+from pydrake.multibody.plant import ExternallyAppliedSpatialForce, MultibodyPlant, MultibodyPlantConfig  # noqa: E402
 from pydrake.multibody.tree import RotationalInertia, SpatialInertia  # noqa: E402
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator  # noqa: E402
+from pydrake.systems.framework import DiagramBuilder, EventStatus, LeafSystem  # noqa: E402
 
 from freebody.adapters import drake_adapter as D  # noqa: E402
 from freebody.adapters.base import EngineDiverged, load_adapter  # noqa: E402
@@ -72,6 +75,12 @@ PER_STEP_APART = 1e-6
 RK3_ORDER_MIN = 2.8
 RK5_ORDER_MIN = 4.6
 ORDER_ABOVE = 0.6
+# One accepted step of Drake's error-controlled RK3/RK5 against the same tableau in numpy from the same
+# state and step (torque-free dzhanibekov, |w| ~ 5): measured 2.7e-15 (clean steps), 1.6e-15 (RK5's
+# retries with the stale accelerations); a clean step against a stale one is 5e-9 apart (median) at
+# accuracy 1e-10.
+DRAKE_STEP_VS_RK_ATOL = 1e-13
+STALE_STEP_APART = 1e-11
 # The quaternion norm of the discrete plant after 10 s of dzhanibekov at dt 0.01 (measured 1.412:
 # sqrt(1 + h^2 |w|^2 / 4) per step, |w| ~ 5); the test wants it between these.
 NORM_AFTER_10S = (1.3, 1.5)
@@ -432,6 +441,117 @@ def test_drake_giving_up_is_a_divergence_other_errors_are_not(monkeypatch, make_
     monkeypatch.setattr(b, "simulator", Broken())
     with pytest.raises(RuntimeError, match="not connected"):
         b.advance(3)
+
+
+# --- item 11 of issue 26: Drake's error-controlled RK5, measured without the adapter --------------
+
+def _dzhanibekov_plant(probe: bool):
+    """A bare pydrake diagram: the dzhanibekov body (I = diag(1, 2, 3), w = (0.01, 5, 0) rad/s) on
+    a continuous plant, and with ``probe`` a system between the plant's state output and its
+    applied-force input that applies nothing and records (t, state) at each evaluation."""
+    builder = DiagramBuilder()
+    plant = builder.AddSystem(MultibodyPlant(0.0))
+    body = plant.AddRigidBody("b", SpatialInertia.MakeFromCentralInertia(1.0, np.zeros(3),
+                                                                        RotationalInertia(1.0, 2.0, 3.0)))
+    plant.mutable_gravity_field().set_gravity_vector(np.zeros(3))
+    plant.Finalize()
+    calls = []
+    if probe:
+        zero = ExternallyAppliedSpatialForce()
+        zero.body_index, zero.p_BoBq_B = body.index(), np.zeros(3)
+        zero.F_Bq_W = SpatialForce(np.zeros(3), np.zeros(3))
+
+        class Probe(LeafSystem):
+            def __init__(self):
+                super().__init__()
+                self.state = self.DeclareVectorInputPort("state", 13)
+                self.DeclareAbstractOutputPort("forces", lambda: AbstractValue.Make([zero]), self.calc)
+
+            def calc(self, context, output):
+                calls.append((context.get_time(), self.state.Eval(context).copy()))
+                output.set_value([zero])
+        p = builder.AddSystem(Probe())
+        builder.Connect(plant.get_state_output_port(), p.get_input_port(0))
+        builder.Connect(p.get_output_port(0), plant.get_applied_spatial_force_input_port())
+    sim = Simulator(builder.Build())
+    ctx = plant.GetMyMutableContextFromRoot(sim.get_mutable_context())
+    plant.SetPositionsAndVelocities(ctx, np.array([1.0, 0, 0, 0, 0, 0, 0, 0.01, 5.0, 0, 0, 0, 0]))
+    return plant, sim, ctx, calls
+
+
+def _error_controlled(sim, plant, ctx, scheme: str, accuracy: float, seconds: float):
+    """Drake's own error control (maximum step 0.1 s, Drake's default; one AdvanceTo, no samples):
+    the accepted steps as (t, state) from the Simulator's monitor, the integrator."""
+    integ = ResetIntegratorFromFlags(sim, scheme, 0.1)
+    integ.set_fixed_step_mode(False)
+    integ.set_target_accuracy(accuracy)
+    sim.Initialize()
+    accepted = [(0.0, plant.GetPositionsAndVelocities(ctx).copy())]
+
+    def monitor(root):
+        accepted.append((root.get_time(), plant.GetPositionsAndVelocities(plant.GetMyContextFromRoot(root)).copy()))
+        return EventStatus.Succeeded()
+    sim.set_monitor(monitor)
+    sim.AdvanceTo(seconds)
+    return accepted, sim.get_integrator()
+
+
+def _rk_step(y, h, tableau, k1):
+    """One explicit Runge-Kutta step of Drake's torque-free state y with the first stage's slope k1."""
+    A, b = tableau
+    f = lambda y_i: drake_time_derivatives(y_i, 1.0, np.diag([1.0, 2.0, 3.0]), np.zeros(3), np.zeros(3),  # noqa: E731
+                                           np.zeros(3))
+    K = [k1]
+    for i in range(1, len(b)):
+        K.append(f(y + sum((h * a) * K[j] for j, a in enumerate(A[i]) if a != 0.0)))
+    return y + sum((h * b_i) * K_i for b_i, K_i in zip(b, K) if b_i != 0.0)
+
+
+def test_drake_rk5_retries_a_rejected_step_with_the_rejected_attempts_accelerations():
+    """The cause of rk5-accuracy-1e-10 being worse than rk5-accuracy-1e-6 (Drake 1.51.1, no adapter
+    in the loop): after error control rejects a trial step, RungeKutta5Integrator retries from the
+    restored state x0, but the first stage's accelerations (wdot, vdot) are those of the rejected
+    attempt's last stage (its 5th-order end state; qdot and xdot are x0's).  IntegratorBase
+    restores x0 through a reference taken before the step (``xc.SetFromVector(xc0_save_)``, no
+    state-change notice) after RK5 has evaluated its FSAL derivative at the end state, so
+    MultibodyPlant's cached dynamics stay those of the end state.  Every accepted step after a
+    rejection is the Dormand-Prince step with those stale accelerations, every other step the
+    clean one; the stale steps are 2% of the steps and carry 99% of the local error."""
+    plant, sim, ctx, calls = _dzhanibekov_plant(probe=True)
+    accepted, integ = _error_controlled(sim, plant, ctx, "runge_kutta5", 1e-10, 3.0)
+    f = lambda y: drake_time_derivatives(y, 1.0, np.diag([1.0, 2.0, 3.0]), np.zeros(3), np.zeros(3), np.zeros(3))  # noqa: E731
+    attempts = [calls[i:i + 7] for i in range(0, len(calls), 7)]  # 7 evaluations an attempt
+    assert len(calls) == 7 * len(attempts) and integ.get_num_step_shrinkages_from_error_control() > 0
+    tableau, stale_steps, clean_steps, it = DRAKE_TABLEAUS["quat-rate-rk5"], [], [], iter(attempts)
+    for (t0, y0), (t1, y1) in zip(accepted, accepted[1:]):
+        tried = [next(it)]
+        while tried[-1][-1][0] != t1:  # rejected attempts end elsewhere
+            tried.append(next(it))
+        clean = _rk_step(y0, t1 - t0, tableau, f(y0))
+        if len(tried) == 1:
+            clean_steps.append(np.abs(y1 - clean).max())
+            continue
+        seen = tried[-1][0][1]  # the state the retry's first stage saw
+        np.testing.assert_array_equal(seen, tried[-2][-1][1])  # = the rejected attempt's last stage
+        stale_k1 = np.concatenate([f(y0)[0:7], f(seen)[7:13]])
+        stale_steps.append((np.abs(y1 - _rk_step(y0, t1 - t0, tableau, stale_k1)).max(), np.abs(y1 - clean).max()))
+    stale_steps = np.array(stale_steps)
+    assert len(stale_steps) >= 5 and max(clean_steps) <= DRAKE_STEP_VS_RK_ATOL
+    assert stale_steps[:, 0].max() <= DRAKE_STEP_VS_RK_ATOL, stale_steps
+    assert stale_steps[:, 1].min() >= STALE_STEP_APART, stale_steps
+
+
+def test_drake_rk3_retries_a_rejected_step_cleanly():
+    """RK3 is not affected (its DoStep notes the state change before writing the end state and
+    evaluates nothing after): every accepted step, after a rejection or not, is the clean Kutta
+    step, and rk3-accuracy-1e-10 is 1e2 better than 1e-8 (2.5e-4 against 2.6e-2 rad on 10 s)."""
+    plant, sim, ctx, _ = _dzhanibekov_plant(probe=False)
+    accepted, integ = _error_controlled(sim, plant, ctx, "runge_kutta3", 1e-8, 1.0)
+    f = lambda y: drake_time_derivatives(y, 1.0, np.diag([1.0, 2.0, 3.0]), np.zeros(3), np.zeros(3), np.zeros(3))  # noqa: E731
+    assert integ.get_num_step_shrinkages_from_error_control() > 0
+    worst = max(np.abs(y1 - _rk_step(y0, t1 - t0, DRAKE_TABLEAUS["quat-rate-rk3"], f(y0))).max()
+                for (t0, y0), (t1, y1) in zip(accepted, accepted[1:]))
+    assert worst <= DRAKE_STEP_VS_RK_ATOL
 
 
 # --- the truth, cross-checked --------------------------------------------------------------------
