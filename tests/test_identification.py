@@ -482,3 +482,32 @@ def test_sapien_pgs_on_gazebo_boxes_is_not_claimed_by_the_map_without_gyroscopic
     m = _sapien_identified("gazebo_boxes_simple", 0.001)
     assert m["verdict"] == "indistinguishable", m["ratios"]
     assert {PHYSX_MAP, "semi-implicit-no-gyro-projected"} <= set(m["indistinguishable"])
+
+
+def test_a_float32_identification_in_chunks_is_the_whole_one():
+    """The float32 drift floor runs on across chunks (the angle turned so far, the step count): a run
+    judged in three chunks gets the whole run's verdict and levels."""
+    from freebody.run.judge import _Identification
+
+    pb, dt = load_case("offset_push"), 0.001
+    n = pb.steps(dt)
+    cache = TruthCache()
+    tr = simulate(pb, "explicit-gyro-rescaled-torque-last", dt, n)
+    whole = _identify(pb, tr, "pgs", dt, n, cache, precision="float32")
+    bounds = [(0, 700), (700, 1500), (1500, n + 1)]
+
+    def pieces(name):
+        q, s = cache.orientation(pb, name, dt, n), cache.roundoff(pb, name, dt, n, "float32")
+        for a, b in bounds:
+            yield q[a:b], s[a:b]
+    ident = _Identification(RunSpec(pb, "engine", "pgs", dt, n, "float32"), pieces)
+    for a, b in bounds:
+        ident.update(tr.quaternion_wxyz[a:b])
+    chunked = ident.result()
+    for key in ("verdict", "integrator", "closest", "indistinguishable", "undecidable"):
+        assert chunked[key] == whole[key], key
+    for name, level in whole["levels_rad"].items():
+        assert chunked["levels_rad"][name] == pytest.approx(level, rel=1e-12), name
+    # the drift floor is what sets the level here, not 100 x the spread
+    assert whole["levels_rad"][PHYSX_MAP] > tol.SCHEME_ROUNDOFF_FACTOR * float(
+        np.max(cache.roundoff(pb, PHYSX_MAP, dt, n, "float32")))
