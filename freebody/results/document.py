@@ -288,7 +288,7 @@ def check_results(doc, where: str) -> dict:
 # The fields of a run's matches_reference that hold a reference map's name, a list of them, an
 # object keyed by them (freebody.run.judge.identify)
 _MAP_NAME_FIELDS = ("integrator", "closest")
-_MAP_NAME_LISTS = ("indistinguishable",)
+_MAP_NAME_LISTS = ("indistinguishable", "undecidable")
 _MAP_NAME_KEYED = ("candidates", "levels_rad", "ratios")
 
 
