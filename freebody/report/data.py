@@ -495,22 +495,23 @@ def expected_order(runs: list[dict], cases: dict | None = None) -> str:
     """The expected order of these runs of one engine run (over the cases they ran), '' when
     unknown: :func:`freebody.report.findings.expected_order` per case (the map it reproduces or
     comes closest to, engine-equivalent maps included; 1 where per-step load sampling limits it on
-    a case whose loads depend on the state, results.json ``cases``), one text when every case
-    expects the same, else the most common one and the cases that differ ('4 (rkmk4-body);
+    a case whose loads depend on the state, results.json ``cases``): the text of the most common
+    one, then each case whose expected order (or its limitation) differs ('4 (rkmk4-body);
     convergence_body_torque: 1 (limited by per-step load sampling; ...)')."""
     from .findings import expected_order as expected, state_dependent_loads
 
-    per_case: dict[str, str] = {}
+    per_case = {}
     for case in dict.fromkeys(r.get("case") for r in runs):
         e = expected([r for r in runs if r.get("case") == case], state_dependent_loads(cases, str(case)))
         if e is not None:
-            per_case[str(case)] = e.text
+            per_case[str(case)] = e
     if not per_case:
         return ""
-    texts = list(per_case.values())
-    common = max(dict.fromkeys(texts), key=texts.count)
-    others = [f"{c}: {t}" for c, t in per_case.items() if t != common]
-    return "; ".join([common, *others])
+    kinds = [(e.order, e.limited) for e in per_case.values()]
+    common = max(dict.fromkeys(kinds), key=kinds.count)
+    first = next(e for e in per_case.values() if (e.order, e.limited) == common)
+    others = [f"{c}: {e.text}" for c, e in per_case.items() if (e.order, e.limited) != common]
+    return "; ".join([first.text, *others])
 
 
 def observed_orders(convergence: list[dict], runs: list[dict],
