@@ -11,8 +11,15 @@ MuJoCo's, converted the same way:
 - ``qvel`` (6,) = [linear velocity (3,) m/s world, angular velocity (3,) rad/s BODY frame]:
   written as ``R^T w_world`` by the MuJoCo adapter, read back as ``R w_body``.
 - Loads: ``xfrc_applied[1]`` (6,) = [force (3,) N world, torque (3,) N m world about the COM],
-  rewritten before every step inside the scan (see below), exactly the wrench the MuJoCo adapter
-  writes (same load schedule, arms from the state at the start of the step).
+  rewritten before every step inside the scan (see below), and ``qfrc_applied[3:6]`` (3,) N m,
+  the body-frame couples (a free joint's rotational dofs are body frame).  MJX's RK4 evaluates
+  both at each of its four stages but cannot rewrite xfrc_applied between them, so the load
+  sampling (``run_load_sampling``) depends on the case: without forces at points (COM forces,
+  world and body couples only) every load reaches every stage as the case defines it
+  (per-stage: the body couple turns with each stage's orientation through qfrc_applied); with a
+  force at a world or body point anywhere in the case, the whole wrench (the body couple's R_k
+  tau_b included) is the world value at the step's start held over the step (per-step), the
+  MuJoCo adapter's old rule, arms from the state at the start of the step.
 
 Stepping.  ``advance(n)`` is ``jax.lax.scan`` of ``mjx.step`` under ``jax.jit`` over chunks of
 ``CHUNK_STEPS`` steps, so n steps cost ceil(n / CHUNK_STEPS) calls from Python and one
@@ -57,7 +64,8 @@ state-dependent parts use the current ``qpos``:  world torque = const + (c - x) 
 axial(R M) + R tau_body, where ``c`` is the first world-point load's point (the other world-point
 loads' (p_i - c) x f_i are folded into const), F_point the sum of world-point forces, M = sum of
 body_point (x) force (3, 3) (so axial(R M) = sum (R b_i) x f_i) and tau_body the body-frame
-couples.
+couples of a case with point forces (per-step); the body couples of a case without go to
+qfrc_applied[3:6] as they are (per-stage).
 
 Precision.  ``float64`` or ``float32`` (JAX's default).  Everything a run does (put_model,
 put_data, tracing, compiling, stepping) runs inside JAX's thread-local ``jax.enable_x64(on)``
@@ -131,7 +139,8 @@ except ImportError:  # no POSIX file locks (Windows): processes may compile the 
 
 from ..reference_impl.conventions import Trajectory  # noqa: E402
 from ..reference_impl.problem import Body, InitialState, Problem  # noqa: E402
-from .base import Adapter, BatchRun, UnsupportedOption, distribution_version  # noqa: E402
+from .base import (LOAD_SAMPLING_PER_STAGE, LOAD_SAMPLING_PER_STEP, Adapter, BatchRun,  # noqa: E402
+                   UnsupportedOption, distribution_version)
 from .loads import LoadSchedule  # noqa: E402
 from .mujoco_adapter import MujocoAdapter, _trajectory  # noqa: E402
 
@@ -150,8 +159,10 @@ _BODY = 1  # body id of the free body (0 is the world)
 
 # One row of per-step loads (the step's load set; see the module docstring):
 # [0:3] force N world, [3:6] constant torque N m world, [6:9] anchor c m world,
-# [9:12] F_point N world, [12:21] M = sum b_i f_i^T (3, 3) row-major (m N), [21:24] tau_body N m body.
-_ROW = 24
+# [9:12] F_point N world, [12:21] M = sum b_i f_i^T (3, 3) row-major (m N), [21:24] tau_body N m body
+# turned by the step's start's R into xfrc_applied (per-step), [24:27] tau_body N m body into
+# qfrc_applied[3:6] (per-stage).
+_ROW = 27
 
 # compiled executables: key -> jax.stages.Compiled
 _COMPILED: dict = {}
@@ -366,7 +377,8 @@ def _quat_matrix(q):
 
 
 def _loaded_step(m, d, row):
-    """xfrc_applied[body] = the row's wrench at the current state, then mjx.step."""
+    """xfrc_applied[body] = the row's wrench at the current state, qfrc_applied[3:6] = its
+    body couple for every stage, then mjx.step."""
     x, q = d.qpos[0:3], d.qpos[3:7]
     R = _quat_matrix(q)
     A = R @ row[12:21].reshape(3, 3)                      # sum (R b_i) f_i^T
@@ -374,7 +386,8 @@ def _loaded_step(m, d, row):
            + jnp.stack([A[1, 2] - A[2, 1], A[2, 0] - A[0, 2], A[0, 1] - A[1, 0]])
            + R @ row[21:24])
     xfrc = d.xfrc_applied.at[_BODY, 0:3].set(row[0:3]).at[_BODY, 3:6].set(tau)
-    return mjx.step(m, d.replace(xfrc_applied=xfrc))
+    qfrc = d.qfrc_applied.at[3:6].set(row[24:27])
+    return mjx.step(m, d.replace(xfrc_applied=xfrc, qfrc_applied=qfrc))
 
 
 def _chunk(m, d, rows, n, mask=None):
@@ -460,8 +473,15 @@ def _build(problem: Problem, dt: float, integrator: str, precision: str, x64_def
     return mx, dx, settings, mask
 
 
+def _per_stage(loads: LoadSchedule) -> bool:
+    """Whether MJX's stages see every load of this schedule as the case defines it: no force at a
+    world or body point in any segment (see the module docstring)."""
+    return not any(s.point_forces or s.body_point_forces for s in loads.segments)
+
+
 def _load_rows(loads: LoadSchedule, k0: int, k1: int, dtype) -> np.ndarray:
     """Per-step load rows (k1 - k0, _ROW) for the steps k0 <= k < k1 (see _ROW)."""
+    couple = slice(24, 27) if _per_stage(loads) else slice(21, 24)
     rows = np.zeros((k1 - k0, _ROW))
     for seg, a, b in loads.stretches(k0, k1):
         row = np.zeros(_ROW)
@@ -477,7 +497,7 @@ def _load_rows(loads: LoadSchedule, k0: int, k1: int, dtype) -> np.ndarray:
             M += np.outer(bp, f)
         row[12:21] = M.ravel()
         if seg.body_torque is not None:
-            row[21:24] = seg.body_torque
+            row[couple] = seg.body_torque
         rows[a - k0:b - k0] = row
     return rows.astype(dtype)
 
@@ -494,6 +514,10 @@ class MjxAdapter(Adapter):
     integrators: ClassVar[tuple[str, ...]] = tuple(_INTEGRATOR_ENUM)
     precisions: ClassVar[tuple[str, ...]] = PRECISIONS
     compare_with: ClassVar[str | None] = "mujoco"
+    load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STEP  # with point forces; see run_load_sampling
+    load_sampling_note: ClassVar[str] = ("per-stage for COM forces, world couples and body couples "
+                                         "(qfrc_applied[3:6]) in a case without point forces; a case "
+                                         "with a force at a point: the whole world wrench per step")
     conventions: ClassVar[dict[str, str]] = {
         "model": "the MuJoCo adapter's MJCF and MjModel, moved to JAX with mjx.put_model/put_data",
         "quaternion order": "(w, x, y, z), Hamilton, body -> world (qpos[3:7]); no reorder",
@@ -502,7 +526,8 @@ class MjxAdapter(Adapter):
         "linear velocity frame": "world (qvel[0:3])",
         "inertia input": "as the MuJoCo adapter (fullinertia, diagonalised by the C compiler)",
         "external loads": "xfrc_applied[body] = (force, torque about the COM), world, written "
-                          "inside the scan before every mjx.step",
+                          "inside the scan before every mjx.step; body couples in qfrc_applied[3:6] "
+                          "when the case has no point forces",
         "stepping": f"jax.lax.scan of mjx.step under jax.jit, {CHUNK_STEPS} steps per call",
         "precision": "float32 or float64 via the thread-local jax.enable_x64 scope; the "
                      "process-wide jax_enable_x64 is left alone",
@@ -525,6 +550,15 @@ class MjxAdapter(Adapter):
     @classmethod
     def supports_batch(cls) -> bool:
         return True
+
+    @classmethod
+    def run_load_sampling(cls, problem: Problem) -> str | None:
+        """Per-stage without forces at points (body couples through qfrc_applied reach every RK4
+        stage), per-step with one (MJX's stages cannot rewrite xfrc_applied)."""
+        if not problem.loads:
+            return None
+        point = any(ld.point is not None or ld.body_point is not None for ld in problem.loads)
+        return LOAD_SAMPLING_PER_STEP if point else LOAD_SAMPLING_PER_STAGE
 
     # --- world ---------------------------------------------------------------------------------
     def build(self) -> None:
