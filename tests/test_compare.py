@@ -3,7 +3,12 @@ run newly diverged/failed, run missing), 2 on unusable input; tolerances; the py
 from __future__ import annotations
 
 import copy
+import ctypes.util
 import json
+import os
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
@@ -207,3 +212,80 @@ def test_compare_matches_on_precision_and_dt(run_dir):
         r["precision"] = "float32"
     result = compare(doc, f32)
     assert result.matched == 0 and result.exit_code == 1  # every float64 run is missing
+
+
+# --- an engine installed but broken (a real import failure: tests/fake_engines/plugin_site) -------
+
+PLUGIN_SITE = Path(__file__).parent / "fake_engines" / "plugin_site"
+BROKEN = "nativelib"  # its package loads a shared library at import; OSError when it is missing
+LOADER_ERROR = "libfreebody_nativelib_core.so.4.0.0: cannot open shared object file"
+
+
+def _plugin_freebody(*args, healthy: bool) -> subprocess.CompletedProcess:
+    """freebody in a child process that sees the plug-in engine through its entry point; its
+    shared library is the C library (``healthy``) or missing (the install is broken)."""
+    env = {k: v for k, v in os.environ.items() if k not in ("FREEBODY_TEST_NATIVELIB",)}
+    env["PYTHONPATH"] = os.pathsep.join([str(PLUGIN_SITE)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    if healthy:
+        env["FREEBODY_TEST_NATIVELIB"] = ctypes.util.find_library("c") or "libc.so.6"
+    return subprocess.run([sys.executable, "-m", "freebody", *map(str, args)], env=env, capture_output=True,
+                          text=True, timeout=300)
+
+
+@pytest.fixture(scope="module")
+def broken_engine(tmp_path_factory) -> dict:
+    """A baseline of the plug-in engine while it loads, and a run after its library went missing."""
+    root = tmp_path_factory.mktemp("broken_engine")
+    common = ("quiz", "--engine", BROKEN, "--dt", "0.02", "--dt", "0.01", "--duration", "0.1", "--jobs", "1",
+              "--quiet")
+    ok = _plugin_freebody("run", *common, "--no-report", "--out", root / "ok", healthy=True)
+    assert ok.returncode == 0, ok.stderr
+    stored = _plugin_freebody("baseline", root / "ok", "--to", root / "base.json", healthy=True)
+    assert stored.returncode == 0, stored.stderr
+    bad = _plugin_freebody("run", *common, "--out", root / "bad", healthy=False)
+    return {"root": root, "base": root / "base.json", "bad": root / "bad", "run": bad}
+
+
+def test_a_broken_engine_is_failed_with_its_import_error_not_missing(broken_engine):
+    run = broken_engine["run"]
+    assert run.returncode == 1, run.stderr  # a failed run: exit 1, no traceback
+    assert "Traceback" not in run.stderr and "OSError" in run.stdout
+    doc = json.loads((broken_engine["bad"] / "results.json").read_text())
+    assert doc["runs"] and all(r["status"] == "failed" for r in doc["runs"])
+    assert all("OSError" in r["message"] and LOADER_ERROR in r["message"] for r in doc["runs"])
+    report = (broken_engine["bad"] / "report.md").read_text()  # the report renders, with the reason
+    assert LOADER_ERROR in report and (broken_engine["bad"] / "report.html").is_file()
+
+
+def test_compare_names_the_import_error_in_text_json_and_junit(broken_engine, tmp_path, capsys):
+    base, bad = str(broken_engine["base"]), str(broken_engine["bad"])
+    junit = tmp_path / "out.xml"
+    assert main(["compare", base, bad, "--junit", str(junit)]) == 1
+    out = capsys.readouterr().out
+    versions = [ln for ln in out.splitlines() if ln.startswith(BROKEN + " ")]
+    assert versions and "failed (" in versions[0] and "OSError" in versions[0] and "not installed" not in out
+    assert "MISSING" in out and "FAILED (new)" in out and "2 runs failed in the current results" in out
+    assert main(["compare", base, bad, "--json"]) == 1
+    verdict = json.loads(capsys.readouterr().out)
+    assert verdict["counts"]["failed_current"] == 2 and verdict["counts"]["missing"] == 4
+    for c in verdict["changes"]:
+        assert c["fails"] and LOADER_ERROR in c["note"], c  # the missing ones say why too
+    tree = ET.parse(junit).getroot()
+    cases = tree.findall(".//testcase")
+    assert len(cases) == 6 and tree.get("failures") == "6"
+    for case in cases:  # every failed or missing run is a <failure>, with the reason
+        (failure,) = case.findall("failure")
+        assert LOADER_ERROR in failure.get("message") and LOADER_ERROR in failure.text
+
+
+def test_a_run_failed_on_both_sides_still_fails_the_gate(run_dir, baseline, tmp_path, capsys):
+    def broke(doc):
+        doc["runs"][1].update(status="failed", message="RuntimeError: the engine crashed")
+    base = _current(run_dir, tmp_path / "b", broke) if (tmp_path / "b").mkdir() is None else None
+    cur = _current(run_dir, tmp_path, broke)
+    junit = tmp_path / "out.xml"
+    assert main(["compare", str(base), str(cur), "--junit", str(junit)]) == 1
+    out = capsys.readouterr().out
+    assert "FAILED" in out and "RuntimeError: the engine crashed" in out
+    failures = ET.parse(junit).getroot().findall(".//failure")
+    assert len(failures) == 1 and "the engine crashed" in failures[0].get("message")

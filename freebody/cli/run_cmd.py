@@ -3,6 +3,7 @@ from __future__ import annotations
 
 ORDER = 20
 
+from ..errors import printable
 from ..input.casefile import bundled_case_paths, check_run_lengths, load_case
 from ..run import Status, expand, select_engines
 from ..run.suite import run_specs
@@ -44,8 +45,9 @@ def add_parser(sub) -> None:
                    help=f"output directory (default {DEFAULT_OUT}); one freebody process writes it at a time")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.add_argument("--baseline", metavar="FILE",
-                   help="a baseline (freebody baseline), results.json or run directory: the report "
-                        "shows the compare verdict against it (freebody compare gives the exit code)")
+                   help="a baseline (freebody baseline), results.json or run directory: the terminal "
+                        "summary ends with the verdict of freebody compare against it, the report shows "
+                        "it, and the exit code is 1 on a regression, as freebody compare's")
     p.add_argument("--table", action="store_true",
                    help="also print the full table, one row a run (report.md has it too); default: "
                         "a summary of cases x engines and the runs that are not ok")
@@ -107,5 +109,14 @@ def run(args) -> int:
         defaults = {pb.name: defaulted_keys(n) for pb, n in zip(problems, names)}
         doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report,
                                   baseline=args.baseline, defaults=defaults)
+    code = 1 if any(r["status"] == Status.FAILED for r in doc["runs"]) else 0
+    if args.baseline is not None:  # the gate of freebody compare BASELINE OUT, in the terminal and the exit code
+        from ..report.render import compare_with
+        from ..results.verdict import compare_command, verdict_line
+
+        comparison = compare_with(args.baseline, doc, str(out_dir))
+        print(f"\ncompared with the baseline {printable(args.baseline)}: {verdict_line(comparison)}"
+              f"\n(the changes: {compare_command(comparison)})")
+        code = max(code, comparison.exit_code)
     print("\n" + where_to_look(out_dir, reports))
-    return 1 if any(r["status"] == Status.FAILED for r in doc["runs"]) else 0
+    return code

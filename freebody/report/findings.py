@@ -51,6 +51,7 @@ SEVERITIES = ("error", "warning", "info")  # most severe first
 KINDS = {
     "failed": ("error", "failed"),
     "same-map-disagreement": ("error", "same map, different results"),
+    "version-change": ("warning", "changed between engine versions"),  # report/version_findings.py
     "no-map": ("warning", "reproduces no reference map"),
     "outlier": ("warning", "error far above the other engines'"),
     "blow-up": ("warning", "|w| or energy blew up"),
@@ -914,7 +915,9 @@ def find(runs: list[dict], trajectory: TrajectoryOf | None = None, convergence: 
     found = (status_findings(runs) + blow_up_findings(runs) + no_map_findings(runs)
              + disagreement_findings(runs, trajectory) + outlier_findings(runs, trajectory)
              + vs_engine_findings(runs) + order_findings(runs, convergence, cases))
+    from .version_findings import version_findings  # it imports this module
 
+    found += version_findings(runs, convergence)
     outliers = {(f.case, f.dt, f.label) for f in found if f.kind == "outlier"}
     found += [f for f in switch_findings(runs) + rotation_cap_findings(runs)
               if (f.case, f.dt, f.label) not in outliers]

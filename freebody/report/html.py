@@ -17,6 +17,7 @@ from . import data as rd
 from . import findings as fd
 from . import markdown as md
 from ..results.versions import VERSIONS_NOTE, side_by_side, version_table
+from .version_findings import VERSIONS_ANCHOR
 from ..run.records import Status
 
 CSS = """
@@ -125,7 +126,7 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
     cases = rd.by_case(runs)
     if found is None:
         found = fd.find(runs, convergence=convergence, cases=doc.get("cases"))
-    p = _head_html(doc, runs, cases, source)
+    p = _head_html(doc, runs, cases, source, comparison)
     p += _findings_html(found, runs, comparison)
     if comparison is not None:
         p += _compare_html(comparison)
@@ -139,8 +140,9 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
     return "\n".join(p)
 
 
-def _head_html(doc: dict, runs: list[dict], cases: dict, source: str) -> list[str]:
-    """The page's head, title, provenance line, incomplete warning and navigation."""
+def _head_html(doc: dict, runs: list[dict], cases: dict, source: str, comparison=None) -> list[str]:
+    """The page's head, title, provenance line, incomplete warning and navigation (every section
+    with an id, the comparison with a baseline and the engine versions when the page has them)."""
     counts = rd.status_counts(runs)
     p = []
     p.append("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
@@ -153,8 +155,11 @@ def _head_html(doc: dict, runs: list[dict], cases: dict, source: str) -> list[st
              + ", ".join(f"{n} {s}" for s, n in counts.items()) + ")</p>")
     if doc.get("incomplete"):
         p.append('<p class="warn"><b>Incomplete:</b> the run was interrupted; only the finished runs are shown.</p>')
-    p.append('<nav><b>Sections:</b> <a href="#findings">Findings</a> <a href="#verdict">Verdict per case</a> '
-             '<a href="#errors">Errors</a> <a href="#convergence">Convergence</a> <a href="#speed">Speed</a> '
+    p.append('<nav><b>Sections:</b> <a href="#findings">Findings</a> '
+             + ('<a href="#compare">Compare with baseline</a> ' if comparison is not None else '')
+             + '<a href="#verdict">Verdict per case</a> '
+             + (f'<a href="#{VERSIONS_ANCHOR}">Engine versions</a> ' if side_by_side(doc) else '')
+             + '<a href="#errors">Errors</a> <a href="#convergence">Convergence</a> <a href="#speed">Speed</a> '
              '<a href="#settings">Settings</a> <a href="#conventions">Conventions</a><br><b>Cases:</b> '
              + " ".join(f'<a href="#{anchor(c)}">{escape(c)}</a>' for c in cases) + "</nav>")
     return p
@@ -205,8 +210,10 @@ def _compare_html(comparison) -> list[str]:
     if rows:
         p.append(table(md.COMPARE_COLUMNS, rows[:md.COMPARE_ROWS], fold="the changes"))
         if len(rows) > md.COMPARE_ROWS:
-            p.append(f'<p class="note">{len(rows) - md.COMPARE_ROWS} more changes: <code>freebody compare '
-                     f'{escape(comparison.sources[0])} RESULTS --all</code>.</p>')
+            from ..results.verdict import compare_command
+
+            p.append(f'<p class="note">{len(rows) - md.COMPARE_ROWS} more changes: '
+                     f'<code>{escape(compare_command(comparison, "--all"))}</code>.</p>')
     return p
 
 
@@ -261,7 +268,7 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
     p.append("<h2>Engines</h2>" + table(("engine", "version", "runs"), rd.engine_versions(doc)))
     versions = side_by_side(doc)
     if versions:
-        p.append("<h2>Engine versions side by side</h2>"
+        p.append(f'<h2 id="{VERSIONS_ANCHOR}">Engine versions side by side</h2>'
                  f'<p class="note">{escape(VERSIONS_NOTE)}</p>' + table(*version_table(versions)))
     p.append('<h2 id="errors">Orientation error per case, engine run and time step</h2>'
              '<p class="note">One panel per time step (a maximum over time steps would show the coarsest '

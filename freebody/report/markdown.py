@@ -16,6 +16,7 @@ from . import findings as fd
 from ..adapters.base import REFERENCE_ENGINE
 from ..numbers import finite_or_none
 from ..results.versions import VERSIONS_NOTE, side_by_side, version_table
+from .version_findings import KIND as VERSION_KIND, VERSIONS_ANCHOR
 from ..run.convergence import SHORT_NAMES
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL,
                            ORIENTATION_ERROR_MAX, POSITION_ERROR_MAX, ROTATION_ORTHONORMALITY_ERROR_MAX)
@@ -134,6 +135,8 @@ def finding_links(f: fd.Finding, runs_by_key: dict) -> list[tuple[str, str]]:
         out.append(("run", rd.run_anchor(run)))
     if f.kind in fd.CONVENTION_KINDS and f.engine and f.engine != REFERENCE_ENGINE:
         out.append((f"{f.engine} conventions", rd.conventions_anchor(f.engine)))
+    if f.kind == VERSION_KIND:
+        out.append(("versions side by side", VERSIONS_ANCHOR))
     return out
 
 
@@ -185,8 +188,9 @@ def _md_links(links: list[tuple[str, str]]) -> str:
 
 def verdict_line(comparison) -> str:
     """The one-line verdict of a comparison with a baseline (the last line of ``freebody compare``)."""
-    lines = comparison.table().splitlines()
-    return next((ln for ln in reversed(lines) if ln.startswith(("OK:", "REGRESSION:"))), lines[-1])
+    from ..results.verdict import verdict_line as line
+
+    return line(comparison)
 
 
 COMPARE_COLUMNS = ("run", "dt", "what", "baseline", "current", "limit", "verdict", "note")
@@ -195,11 +199,11 @@ COMPARE_ROWS = 40  # changes shown; the rest: freebody compare
 
 def compare_rows(comparison) -> list[tuple]:
     """The changes of a comparison (failing first), as ``freebody compare`` lists them."""
-    from ..results.verdict import _cell, _dt, _sorted
+    from ..results.verdict import _cell, _dt, _listed, _sorted, shown_verdict
 
     return [(c.label, _dt(c), c.what, _cell(c.baseline), _cell(c.current), _cell(c.limit),
-             c.verdict.upper() if c.fails(comparison.strict) else c.verdict, c.note)
-            for c in _sorted([c for c in comparison.changes if c.verdict != "same"])]
+             shown_verdict(c, comparison.strict), c.note)
+            for c in _sorted([c for c in comparison.changes if _listed(c)])]
 
 
 def compare_lines(comparison) -> list[str]:
@@ -214,8 +218,9 @@ def compare_lines(comparison) -> list[str]:
     if rows:
         out += [md_table(COMPARE_COLUMNS, rows[:COMPARE_ROWS]), ""]
         if len(rows) > COMPARE_ROWS:
-            out += [f"{len(rows) - COMPARE_ROWS} more changes: `freebody compare {comparison.sources[0]} "
-                    f"RESULTS --all`.", ""]
+            from ..results.verdict import compare_command
+
+            out += [f"{len(rows) - COMPARE_ROWS} more changes: `{compare_command(comparison, '--all')}`.", ""]
     return out
 
 

@@ -152,6 +152,28 @@ def strict_figures() -> bool:
     return os.environ.get("FREEBODY_STRICT_FIGURES") == "1" or "PYTEST_CURRENT_TEST" in os.environ
 
 
+def _unlog_empty_axes(fig) -> None:
+    """Give a log axis with nothing positive to show (every run of the panel failed, was skipped
+    or diverged) a linear scale without ticks: matplotlib cannot draw a log axis of no data
+    ("Data cannot be log-scaled"), and the panel says why it is empty."""
+    from matplotlib.ticker import NullLocator
+
+    for ax in fig.axes:
+        for axis, get_scale, set_scale, index in ((ax.xaxis, ax.get_xscale, ax.set_xscale, 0),
+                                                  (ax.yaxis, ax.get_yscale, ax.set_yscale, 1)):
+            if get_scale() != "log":
+                continue
+            values = [np.asarray(line.get_xydata(), dtype=float)[:, index] for line in ax.lines
+                      if len(line.get_xdata())]
+            values += [np.asarray(c.get_offsets(), dtype=float).reshape(-1, 2)[:, index]
+                       for c in ax.collections if hasattr(c, "get_offsets")]
+            data = np.concatenate(values) if values else np.empty(0)
+            if not np.any(np.isfinite(data) & (data > 0)):
+                set_scale("linear")
+                axis.set_major_locator(NullLocator())
+                axis.set_minor_locator(NullLocator())
+
+
 def png_bytes(fig) -> bytes:
     """The figure as PNG: the pixels ``fig.savefig(format="png")`` draws at DPI, stored with a
     palette of PNG_COLOURS when the figure is opaque (a third of the RGB size), with no software
@@ -163,6 +185,7 @@ def png_bytes(fig) -> bytes:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image
 
+    _unlog_empty_axes(fig)
     canvas = FigureCanvasAgg(fig)
     canvas.draw()
     canvas, names = fit_texts(fig, canvas)

@@ -47,14 +47,15 @@ def convergence_of(doc: dict) -> list[dict]:
     return conv if isinstance(conv, list) else fit_orders(doc.get("runs") or [])
 
 
-def compare_with(baseline, doc: dict):
+def compare_with(baseline, doc: dict, current: str = "this run"):
     """The comparison of the results ``doc`` with a baseline (a baseline file, a results.json, a
     run directory or a results dict), as ``freebody compare BASELINE RESULTS`` makes it with the
-    default tolerances; InputError when the baseline is unusable."""
+    default tolerances; InputError when the baseline is unusable.  ``current``: where ``doc``
+    is stored (its run directory), named in the verdict's commands; "this run" when nowhere yet."""
     from ..results.compare import compare, load_side
 
     source = "baseline" if isinstance(baseline, dict) else str(baseline)
-    return compare(load_side(baseline, "baseline"), doc, sources=(source, "this run"))
+    return compare(load_side(baseline, "baseline"), doc, sources=(source, current))
 
 
 def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None = None,
@@ -80,7 +81,7 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}
     pairs = {c: rd.pairwise(rs, physics[c], out_dir) for c, rs in rd.by_case(runs).items()}
     found = fd.find(runs, rd.trajectory_reader(out_dir), conv, doc.get("cases"))
-    comparison = compare_with(baseline, doc) if baseline is not None else None
+    comparison = compare_with(baseline, doc, str(out_dir)) if baseline is not None else None
     md_path = out_dir / "report.md"
     write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs, found=found,
                                                comparison=comparison))

@@ -16,7 +16,14 @@ freebody set in the engine).  A failing change (a *regression* in the gate's sen
   a fitted order of convergence moved by more than ``tol.COMPARE_ORDER_CHANGE``;
 - a metric (see :data:`COMPARED_METRICS`) worse beyond its tolerance,
   ``current > baseline + atol + rtol |baseline|``, or now undefined, in runs of the same status.
-  Orientation errors beyond ``tol.COMPARE_ORIENTATION_SATURATED_RAD`` on both sides are equal.
+  Orientation errors beyond ``tol.COMPARE_ORIENTATION_SATURATED_RAD`` on both sides are equal;
+- a run that ``failed`` in the current results, whether new, failed in the baseline too or newly
+  failed (its reason, e.g. an engine installed but failing to import, in the change's note; the
+  baseline runs such an engine leaves missing say why).
+
+An engine run under one name on each side, the names differing (``mujoco==3.1.6`` in the baseline,
+``mujoco`` 4.0.0 in the current results), is matched across the names
+(:func:`.versions.align_engine_names`): an upgrade gates against a baseline of the pinned version.
 
 Improvements beyond the tolerance, status changes for the better and runs new in the current
 results are listed but are not regressions, unless ``strict`` (then every change beyond tolerance
@@ -46,6 +53,7 @@ from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_ABS, ANGULAR_MOMENTUM_ERRO
 from ..run.experiment import differences, setting_notes
 from ..run.records import Status
 
+VERSION_REASON_CHARS = 160  # why an engine has no version (it failed to load), in the versions table: one line
 STATUS_RANK = {Status.OK: 3, Status.DIVERGED: 2, Status.FAILED: 1}  # skipped: not measured (no rank)
 
 # Default absolute tolerance of each compared metric, in the metric's unit (the values and their
@@ -106,9 +114,17 @@ class Change:
     limit: float | None = None
     note: str = ""
 
+    @property
+    def failed_now(self) -> bool:
+        """Whether this is the status line of a run that ``failed`` in the current results (new,
+        failed in the baseline too, or newly failed): such a run always fails the gate, with its
+        reason in ``note``."""
+        return self.what in ("status", "run") and self.current == Status.FAILED
+
     def fails(self, strict: bool = False) -> bool:
-        """Whether this change fails the gate (:data:`FAILING`; with ``strict``: STRICT_FAILING)."""
-        return self.verdict in (STRICT_FAILING if strict else FAILING)
+        """Whether this change fails the gate (:data:`FAILING`, or a run failed in the current
+        results: :attr:`failed_now`; with ``strict``: STRICT_FAILING too)."""
+        return self.verdict in (STRICT_FAILING if strict else FAILING) or self.failed_now
 
 
 @dataclass(frozen=True)
@@ -137,6 +153,9 @@ class Comparison:
     groups: list[dict] = field(default_factory=list)
     schema_versions: tuple = (None, None)
     one_sided: list[str] = field(default_factory=list)
+    # (common name, baseline name, current name): an engine whose runs were matched across the
+    # names each side ran it under (mujoco==3.1.6 in the baseline, mujoco in the current results)
+    renamed: list[tuple[str, str, str]] = field(default_factory=list)
 
     @property
     def regressions(self) -> list[Change]:
@@ -261,7 +280,12 @@ def _index(runs: list[dict]) -> dict[tuple, dict]:
 
 def _versions(base: dict, cur: dict) -> list[tuple[str, str, str]]:
     def of(doc):
-        v = {e: (str(x) if x else "not installed") for e, x in (doc.get("engines") or {}).items()}
+        failed: dict[str, str] = {}  # engine -> why its runs failed (an engine that fails to import)
+        for r in doc.get("runs") or []:
+            if r.get("status") == Status.FAILED and isinstance(r.get("engine"), str):
+                failed.setdefault(r["engine"], str(r.get("message") or "no reason recorded"))
+        v = {e: (str(x) if x else f"failed ({cap(failed[e], VERSION_REASON_CHARS)})" if e in failed
+                 else "not installed") for e, x in (doc.get("engines") or {}).items()}
         for r in doc.get("runs") or []:
             if r.get("engine_version"):
                 v.setdefault(r["engine"], str(r["engine_version"]))
@@ -270,6 +294,24 @@ def _versions(base: dict, cur: dict) -> list[tuple[str, str, str]]:
     b, c = of(base), of(cur)
     rows = [("freebody", *(str(d.get("freebody_version") or "-") for d in (base, cur)))]
     return rows + [(e, b.get(e, "-"), c.get(e, "-")) for e in dict.fromkeys([*b, *c])]
+
+
+def cap(text: str, n: int) -> str:
+    """``text`` on one line, cut to ``n`` characters with an ellipsis."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[:n - 3] + "..."
+
+
+def load_failures(doc: dict) -> dict[tuple, str]:
+    """(case, engine, precision, dt) -> the reason of a run that ran no integrator because its
+    engine's adapter failed to load (integrator ``*``, status ``failed``: an engine installed but
+    broken), for the note of the baseline runs this leaves missing."""
+    out = {}
+    for r in doc.get("runs") or []:
+        if r.get("status") == Status.FAILED and r.get("integrator") == "*":
+            k = run_key(r)
+            out.setdefault((k[0], k[1], k[3], k[4]), str(r.get("message") or ""))
+    return out
 
 
 def _default_changes(b_runs: dict, c_runs: dict) -> list[tuple[str, str, str, str]]:
@@ -386,6 +428,14 @@ def _order_changes(baseline: dict, current: dict, keep) -> list[Change]:
     return out
 
 
+def _kept(doc: dict, keep) -> dict:
+    """The document with only the runs (and fitted orders) that ``keep`` keeps."""
+    out = {**doc, "runs": [r for r in doc.get("runs") or [] if keep(r)]}
+    if isinstance(doc.get("convergence"), list):
+        out["convergence"] = [e for e in doc["convergence"] if isinstance(e, dict) and keep(e)]
+    return out
+
+
 def _filter(engines, cases):
     engines, cases = set(engines or ()), set(cases or ())
 
@@ -402,19 +452,27 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
 
     strict : every change beyond tolerance fails (improvements included).
     engines, cases : compare only the runs of these engines / cases (on both sides)."""
+    from .versions import align_engine_names
+
     baseline, current = upgrade_names(baseline), upgrade_names(current)
     tols = tolerances or default_tolerances()
     keep = _filter(engines, cases)
+    # the filters apply to the names as run; then an engine's versions are matched across the sides
+    baseline, current, renamed = align_engine_names(_kept(baseline, keep), _kept(current, keep))
+    keep = _filter(None, None)
     b_runs = _index([r for r in baseline.get("runs") or [] if keep(r)])
     c_runs = _index([r for r in current.get("runs") or [] if keep(r)])
     changes: list[Change] = []
     one_sided: dict[str, None] = {}  # settings freebody set on one side only, per engine (ordered)
     matched = unchecked = 0
+    broken = load_failures({"runs": list(c_runs.values())})
     for key, b in b_runs.items():
         lab = f"{key[0]} {run_label({**b, 'precision': key[3]})}"
         c = c_runs.get(key)
         if c is None:
-            changes.append(Change(key, lab, "run", b.get("status"), None, "missing"))
+            why = broken.get((key[0], key[1], key[3], key[4]))
+            changes.append(Change(key, lab, "run", b.get("status"), None, "missing",
+                                  note=f"the engine failed in the current results: {why}" if why else ""))
             continue
         matched += 1
         diff, checked = _experiment_differences(b, c)
@@ -427,10 +485,11 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
                                   note=note))
             continue
         bs, cs = b.get("status"), c.get("status")
+        why = str(c.get("message") or "") if cs == Status.FAILED else ""
         if bs != cs:
-            changes.append(_status_change(key, lab, bs, cs))
+            changes.append(replace(_status_change(key, lab, bs, cs), note=why))
             continue
-        changes.append(Change(key, lab, "status", bs, cs, "same"))  # every matched run has a line
+        changes.append(Change(key, lab, "status", bs, cs, "same", note=why))  # every matched run has a line
         moved = _scheme_change(b, c)
         if moved:
             changes.append(Change(key, lab, "scheme", moved[0], moved[1], "scheme changed"))
@@ -438,11 +497,13 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
     for key, c in c_runs.items():
         if key not in b_runs:
             changes.append(Change(key, f"{key[0]} {run_label({**c, 'precision': key[3]})}", "run", None,
-                                  c.get("status"), "new"))
+                                  c.get("status"), "new",
+                                  note=str(c.get("message") or "") if c.get("status") == Status.FAILED else ""))
     changes += _order_changes(baseline, current, keep)
     cmp = Comparison(changes, _versions(baseline, current), matched, len(b_runs), len(c_runs), tols, sources,
                      strict, _default_changes(b_runs, c_runs), unchecked, one_sided=list(one_sided),
-                     schema_versions=(baseline.get("schema_version"), current.get("schema_version")))
+                     schema_versions=(baseline.get("schema_version"), current.get("schema_version")),
+                     renamed=renamed)
     return replace(cmp, groups=group_summaries(cmp, b_runs, c_runs))
 
 

@@ -43,6 +43,13 @@ def _base(engine: str, _memo: dict[str, str] | None = None) -> str:
     return out
 
 
+def engine_of(engine: str, memo: dict[str, str] | None = None) -> str:
+    """The registered engine of an engine name as run (``mujoco==3.1.6`` -> ``mujoco``); an engine
+    this freebody does not know keeps the name before its version specifier.  ``memo``: a dict
+    caching the answers of one document."""
+    return _base(engine, memo)
+
+
 def version_groups(doc: dict) -> dict[str, list[str]]:
     """engine -> its names in the document's runs (in run order), for engines run under two or more
     names (versions)."""
@@ -232,6 +239,50 @@ def split_sides(doc: dict, engine: str, against: str) -> tuple[dict, dict]:
         return out
 
     return side(engine), side(against)
+
+
+def align_engine_names(baseline: dict, current: dict) -> tuple[dict, dict, list[tuple[str, str, str]]]:
+    """(baseline, current, renamed): the two results documents with an engine's runs named alike
+    on both sides when each side ran that engine under one name and the names differ (a baseline
+    of ``--engine mujoco==3.1.6`` against a run of ``--engine mujoco``, the installed 4.0.0), so
+    that :func:`~freebody.results.compare.compare` matches them run by run as it matches two
+    versions of one file (``--against``) and reports their scheme, order and setting changes.
+
+    Both sides take the engine's registered name (``mujoco``); ``runs``, ``engines`` and
+    ``convergence`` are renamed, the documents given are not modified.  An engine run under two or
+    more names on a side (both versions in one file) keeps its names: its runs match by name.
+    renamed : (common name, baseline name, current name) of every engine renamed."""
+    def names(doc: dict, memo: dict) -> dict[str, list[str]]:
+        out: dict[str, dict[str, None]] = {}
+        for r in doc.get("runs") or []:
+            if isinstance(r.get("engine"), str):
+                out.setdefault(_base(r["engine"], memo), {})[r["engine"]] = None
+        return {b: list(n) for b, n in out.items()}
+
+    memo: dict[str, str] = {}
+    nb, nc = names(baseline, memo), names(current, memo)
+    rename_b, rename_c, renamed = {}, {}, []
+    for base in nb:
+        if base in nc and len(nb[base]) == 1 and len(nc[base]) == 1 and nb[base] != nc[base]:
+            (b_name,), (c_name,) = nb[base], nc[base]
+            rename_b[b_name], rename_c[c_name] = base, base
+            renamed.append((base, b_name, c_name))
+    if not renamed:
+        return baseline, current, []
+
+    def apply(doc: dict, mapping: dict[str, str]) -> dict:
+        out = dict(doc)
+        out["runs"] = [{**r, "engine": mapping[r["engine"]]} if r.get("engine") in mapping else r
+                       for r in doc.get("runs") or []]
+        if isinstance(doc.get("engines"), dict):
+            out["engines"] = {mapping.get(e, e): v for e, v in doc["engines"].items()}
+        if isinstance(doc.get("convergence"), list):
+            out["convergence"] = [{**e, "engine": mapping[e["engine"]]}
+                                  if isinstance(e, dict) and e.get("engine") in mapping else e
+                                  for e in doc["convergence"]]
+        return out
+
+    return apply(baseline, rename_b), apply(current, rename_c), renamed
 
 
 VERSIONS_NOTE = ("Runs that two or more versions of an engine ran, one line per version: the reference "
