@@ -45,14 +45,26 @@ Maps (``ENGINE_MAPS[name]``):
   state [q, x, w, v] with w in the world frame and the quaternion integrated as a vector through
   its rate 1/2 (0, w) q, never renormalised (the rotation is that of q / |q|).
 
-Loads, as the adapters apply them (``adapters/loads.py``): the wrench of step k (force (3,) N world,
-torque about the COM (3,) N m world) is evaluated ONCE, at the state at the start of step k (torque
-arms from x_k and R_k), and held constant over the step: every RK stage sees the same world force
-and world torque (a body couple turned by R_k, not by the stage's rotation).  That is how the
-adapters drive MuJoCo (``xfrc_applied`` written before each step), PyBullet
-(``applyExternalForce``/``applyExternalTorque`` before each step) and DART (``addExtForce``/
-``addExtTorque``, body-frame torques in DART's body frame).  The reference integrators' ``rk4``
-instead re-evaluates the arms at each stage.
+Loads, as the adapters apply them (``adapters/loads.py``, :mod:`sampling`): a load's on/off timing
+is per step (the active set of step k is constant over the step).  Within a step, the multi-stage
+maps (:data:`MULTI_STAGE_MAPS`: ``rkmk4-body``, ``rk4-body-exp``, ``quat-rate-rk2/rk3/bs3/rk5``) have
+two variants, chosen by ``load_sampling``:
+
+- ``per-stage`` (the default): the wrench of step k (force (3,) N world, torque about the COM (3,)
+  N m world) is evaluated at every stage's own state (x_i, R(q_i)): a body couple is R(q_i) tau_b,
+  a body-point force's arm R(q_i) b, a world-point force's arm p - x_i.  That is how the adapters
+  now drive MuJoCo (body couples in ``qfrc_applied[3:6]``, point forces through ``mjcb_control``
+  at every RK4 stage), MJX on cases without point forces, and the reference ``rk4`` / ``rkmk4``.
+- ``per-step``: the wrench is evaluated ONCE, at the state at the start of step k (arms from x_k
+  and R_k), and held over the step: every stage sees the same world force and world torque.  That
+  is what an adapter that writes a world wrench before each step gives a multi-stage scheme
+  (Newton's mujoco-rk4, MJX with point forces, Drake until its adapter turns the loads per stage);
+  such a run is first order under a load that turns with the body.
+
+Identification compares each run with the variant of its engine's declared rule
+(``Adapter.run_load_sampling``).  The one-stage maps evaluate the wrench once, at the step's start,
+under either rule (PyBullet ``applyExternalForce``/``applyExternalTorque``, DART ``addExtForce``/
+``addExtTorque``, PhysX, Newton, Brax): their two variants are the same trajectory.
 
 Each map is one numpy function of a step, ``*_step(k, state..., dt, constants..., wrench)``, with
 ``wrench(k, x, R)`` from :func:`dynamics.wrench_function`.  :mod:`compiled_engine_maps` has the same
