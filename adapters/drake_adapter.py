@@ -68,22 +68,18 @@ Drake's conventions and what this adapter converts:
   step k before AdvanceTo((k + 1) dt), so all of step k's stages, the one at (k + 1) dt included,
   see step k's loads.  The discrete plant evaluates its dynamics once a step, at the step's start:
   there the wrench is the step-start one.  No load in the case: the port is left unconnected.
-  Load sampling ``per-stage``.  Cost: one Python evaluation per stage, 30-50 us each (measured on
-  convergence_body_torque, 1000 steps of dt 0.001, a busy 2-core machine: rk3 300 us a step,
-  rk5 370, discrete 220, against 40-65 us for the same case without its load and 300-400 us for
-  the former per-step port writes).
-- Time: the continuous plant is advanced with ``Simulator.AdvanceTo((k + 1) dt)``.  (k + 1) dt - k dt
-  is not dt in floating point (0.07 - 0.06 = 0.010000000000000009): with a maximum step of exactly
-  dt, fixed-step mode takes a step of dt and then a second, tiny one (10% of the calls at
-  dt = 0.01).  The maximum step is dt (1 + DRAKE_STEP_SLACK): one step per freebody step, of
-  (k + 1) dt - k dt (exact, Sterbenz); ``advance`` checks the integrator's step count.
+  Load sampling ``per-stage``.  Cost: one Python evaluation per stage, 50-100 us each (measured
+  on convergence_body_torque, 1000 steps of dt 0.001, a 2-core machine under a load of 4-5: a step
+  takes rk3 290-360 us, rk5 370-810, discrete 190-270, against 40-155 us for the same case without
+  its load and 300-440 us with the former per-step port writes).
 - Error control (Drake's, measured with pydrake alone: issue 26 item 11): the target accuracy is a
   per-step tolerance, and RK5's error control is not monotone in it.  After a rejected trial step
   ``IntegratorBase::StepOnceErrorControlledAtMost`` restores x0 through a reference taken before
   the step (``xc.SetFromVector(xc0_save_)``, no state-change notice; ``SetTime`` invalidates only
   what depends on time), and ``RungeKutta5Integrator`` had evaluated its FSAL derivative at the
   attempt's end state, so the retry's first stage takes the accelerations (wdot, vdot) of that end
-  state (qdot, xdot are x0's).  Each accepted step after a rejection equals the Dormand-Prince step
+  state (qdot, xdot are x0's; with loads, the load system's input, the plant's state output, is
+  that end state too).  Each accepted step after a rejection equals the Dormand-Prince step
   with those stale accelerations to 1.6e-15 and is 5e-9 off the clean step (accuracy 1e-10); on
   10 s of dzhanibekov those 23 of 1167 steps carry 99% of the local error: 3.2e-3 rad with Drake's
   own step sizes, 3.7e-3 through the adapter (maximum step dt, samples at k dt: neither is the
@@ -548,7 +544,8 @@ class DrakeAdapter(Adapter):
 
     def bare_loop(self, steps: int) -> Callable[[], object]:
         """Simulator.AdvanceTo + GetPositionsAndVelocities, ``steps`` times from this adapter's
-        current time (``freebody bench``)."""
+        current time (``freebody bench``); the load system, if any, evaluates inside AdvanceTo
+        with the segment last set (the per-step segment writes are the adapter's work)."""
         sim, plant, ctx, dt = self.simulator, self.plant, self.context, self.dt
 
         def loop():
