@@ -581,12 +581,17 @@ def test_drake_rk5_at_a_small_step_reproduces_both_truth_oracles():
 
 # --- scheme identification through the harness --------------------------------------------------
 
-@pytest.mark.parametrize("integrator", ["discrete", "explicit-euler", "rk3"])
-def test_identification_names_the_map(integrator):
-    pb = load_case("world_torque")
+@pytest.mark.parametrize("case, integrator", [("world_torque", "discrete"), ("world_torque", "explicit-euler"),
+                                               ("world_torque", "rk3"), ("body_torque_spinup", "rk3"),
+                                               ("body_torque_spinup", "rk5")])
+def test_identification_names_the_map(case, integrator):
+    """Through the harness: the run reproduces its map; on a body couple (body_torque_spinup) the
+    multi-stage schemes are identified with the maps' per-stage variant, the run's recorded rule."""
+    pb = load_case(case)
     out = execute(RunSpec(pb, "drake", integrator, 0.01, pb.steps(0.01)))
     match = out.result.matches_reference
     assert out.result.status == "ok", out.result.message
+    assert out.result.load_sampling == LOAD_SAMPLING_PER_STAGE
     assert match["integrator"] == MAP_OF[integrator], match
     assert match["max_orientation_diff_rad"] <= match["threshold_rad"]
 
