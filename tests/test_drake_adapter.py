@@ -496,14 +496,18 @@ def _error_controlled(sim, plant, ctx, scheme: str, accuracy: float, seconds: fl
     return accepted, sim.get_integrator()
 
 
+def _torque_free_derivatives(y: np.ndarray) -> np.ndarray:
+    """Drake's time derivatives (13,) of the dzhanibekov body at its state y (13,), no load."""
+    z = np.zeros(3)
+    return drake_time_derivatives(y, 1.0, np.diag([1.0, 2.0, 3.0]), z, z, z)
+
+
 def _rk_step(y, h, tableau, k1):
     """One explicit Runge-Kutta step of Drake's torque-free state y with the first stage's slope k1."""
     A, b = tableau
-    f = lambda y_i: drake_time_derivatives(y_i, 1.0, np.diag([1.0, 2.0, 3.0]), np.zeros(3), np.zeros(3),  # noqa: E731
-                                           np.zeros(3))
     K = [k1]
     for i in range(1, len(b)):
-        K.append(f(y + sum((h * a) * K[j] for j, a in enumerate(A[i]) if a != 0.0)))
+        K.append(_torque_free_derivatives(y + sum((h * a) * K[j] for j, a in enumerate(A[i]) if a != 0.0)))
     return y + sum((h * b_i) * K_i for b_i, K_i in zip(b, K) if b_i != 0.0)
 
 
@@ -519,7 +523,7 @@ def test_drake_rk5_retries_a_rejected_step_with_the_rejected_attempts_accelerati
     clean one; the stale steps are 2% of the steps and carry 99% of the local error."""
     plant, sim, ctx, calls = _dzhanibekov_plant(probe=True)
     accepted, integ = _error_controlled(sim, plant, ctx, "runge_kutta5", 1e-10, 3.0)
-    f = lambda y: drake_time_derivatives(y, 1.0, np.diag([1.0, 2.0, 3.0]), np.zeros(3), np.zeros(3), np.zeros(3))  # noqa: E731
+    f = _torque_free_derivatives
     attempts = [calls[i:i + 7] for i in range(0, len(calls), 7)]  # 7 evaluations an attempt
     assert len(calls) == 7 * len(attempts) and integ.get_num_step_shrinkages_from_error_control() > 0
     tableau, stale_steps, clean_steps, it = DRAKE_TABLEAUS["quat-rate-rk5"], [], [], iter(attempts)
@@ -547,7 +551,7 @@ def test_drake_rk3_retries_a_rejected_step_cleanly():
     step, and rk3-accuracy-1e-10 is 1e2 better than 1e-8 (2.5e-4 against 2.6e-2 rad on 10 s)."""
     plant, sim, ctx, _ = _dzhanibekov_plant(probe=False)
     accepted, integ = _error_controlled(sim, plant, ctx, "runge_kutta3", 1e-8, 1.0)
-    f = lambda y: drake_time_derivatives(y, 1.0, np.diag([1.0, 2.0, 3.0]), np.zeros(3), np.zeros(3), np.zeros(3))  # noqa: E731
+    f = _torque_free_derivatives
     assert integ.get_num_step_shrinkages_from_error_control() > 0
     worst = max(np.abs(y1 - _rk_step(y0, t1 - t0, DRAKE_TABLEAUS["quat-rate-rk3"], f(y0))).max()
                 for (t0, y0), (t1, y1) in zip(accepted, accepted[1:]))
