@@ -209,3 +209,48 @@ def test_fit_skips_runs_that_are_not_ok_and_groups_with_fewer_than_three_dts():
     assert fit_orders(_runs({0.02: 0.02, 0.01: 0.01})) == []
     e = _orient(fit_orders(_runs({0.04: math.nan, 0.02: 0.02, 0.01: 0.01})))
     assert e["order"] is None and e["errors"][-1] is None
+
+
+STATUS_MESSAGES = {"failed": "OSError: libengine.so.4: cannot open shared object file",
+                   "skipped": "broken is not installed: pip install broken",
+                   "diverged": "diverged at t = 0.05 s: state is not finite"}
+
+
+def _not_ok(run: dict, status: str, engine: str) -> dict:
+    r = copy.deepcopy(run)
+    r.update(engine=engine, status=status, message=STATUS_MESSAGES[status], final_state=None, trajectory=None,
+             metrics={} if status != "diverged" else {k: math.nan for k in run["metrics"]},
+             matches_reference=None, diverged_at_s=0.05 if status == "diverged" else None)
+    return r
+
+
+SUBSETS = [("failed",), ("skipped",), ("diverged",), ("failed", "skipped"), ("failed", "diverged"),
+           ("skipped", "diverged"), ("failed", "skipped", "diverged")]
+
+
+@pytest.mark.parametrize("statuses, others_ok", [(s, False) for s in SUBSETS] + [(SUBSETS[-1], True)],
+                         ids=[f"{'+'.join(s)}-no-ok-run" for s in SUBSETS] + ["all-beside-ok-runs"])
+def test_any_subset_of_failed_skipped_diverged_runs_renders(run_dir, tmp_path, statuses, others_ok):
+    """Every run of an engine not ok (a convergence case, three time steps, where all of them failed,
+    were skipped or diverged, in any mix), beside ok runs of another engine or with none at all:
+    both reports render (figures included), without a NaN, naming each reason."""
+    doc = json.loads((run_dir / "results.json").read_text())
+    ok = doc["runs"]
+    broken = [_not_ok(r, statuses[i % len(statuses)], "broken") for i, r in enumerate(ok)]
+    runs = (ok if others_ok else [_not_ok(r, statuses[-1 - i % len(statuses)], "reference")
+                                  for i, r in enumerate(ok)]) + broken
+    doc = {**doc, "runs": runs, "engines": {"reference": doc["engines"]["reference"], "broken": None}}
+    doc.pop("convergence", None)
+    out = tmp_path / "out"
+    for r in runs:
+        if r.get("trajectory"):
+            (out / r["trajectory"]).parent.mkdir(parents=True, exist_ok=True)
+            (out / r["trajectory"]).write_bytes((run_dir / r["trajectory"]).read_bytes())
+    md_path, html_path = write_reports(out, doc)
+    md, html = md_path.read_text(), html_path.read_text()
+    for text in (md, html):
+        assert not re.search(r"\bnan\b|\binf\b", text, re.IGNORECASE)
+        for s in statuses:
+            assert STATUS_MESSAGES[s] in text
+    p = parse_html(html)
+    assert p.errors == [] and len(p.images) >= 1 and all(s.startswith("data:image/png;base64,") for s in p.images)
