@@ -66,7 +66,7 @@ def _same_result(whole, chunked, rtol: float = 1e-9, saved: bool = True) -> None
     assert (ma is None) == (mb is None)
     if ma is not None:
         assert set(ma) == set(mb)
-        for k in ("integrator", "closest", "indistinguishable", "rule"):
+        for k in ("verdict", "integrator", "closest", "indistinguishable", "undecidable", "rule"):
             assert mb[k] == ma[k], k
         for k in ("candidates", "levels_rad", "ratios"):
             _same_metrics(ma[k], mb[k], rtol)
