@@ -511,3 +511,20 @@ def test_a_float32_identification_in_chunks_is_the_whole_one():
     # the drift floor is what sets the level here, not 100 x the spread
     assert whole["levels_rad"][PHYSX_MAP] > tol.SCHEME_ROUNDOFF_FACTOR * float(
         np.max(cache.roundoff(pb, PHYSX_MAP, dt, n, "float32")))
+
+
+def test_a_run_whose_usual_map_is_undecidable_here_is_no_scheme_switch():
+    """high_spin_dt_10ms: the engines' explicit map is undecidable there (its perturbed copies blow
+    up), so the tie holds other maps only; that is no switch of scheme."""
+    from freebody.report.findings import switch_findings
+
+    def run(case, tie, undecidable=()):
+        m = {"verdict": "reproduces" if len(tie) == 1 else "indistinguishable", "integrator": tie[0],
+             "closest": tie[0], "indistinguishable": list(tie), "undecidable": list(undecidable),
+             "candidates": {t: 0.0 for t in tie}, "levels_rad": {t: 1e-12 for t in tie}, "ratios": {}}
+        return {"case": case, "engine": "e", "integrator": "Euler", "dt": 0.01, "status": "ok",
+                "metrics": {}, "matches_reference": m}
+    usual = [run(f"c{i}", ["semi-implicit-explicit-gyro"]) for i in range(3)]
+    other = ["semi-implicit-implicit-gyro", "rkmk4-body"]
+    assert len(switch_findings(usual + [run("high", other)])) == 1
+    assert switch_findings(usual + [run("high", other, ["semi-implicit-explicit-gyro"])]) == []

@@ -810,7 +810,8 @@ def switch_findings(runs: list[dict]) -> list[Finding]:
             continue
         for r in rs:
             key = scheme_key(r)
-            if key[1] and best not in scheme_set(r):
+            undecided = (_match(r) or {}).get("undecidable") or []  # its usual map may still be it here
+            if key[1] and best not in scheme_set(r) and best not in undecided:
                 cause = f"; cause: {cap_text(r)}" if capped(r) else ""
                 out.append(_finding("scheme-switch", r, f"reproduces {key[0]} here; {n} of its {total} runs "
                                                         f"reproduce {best}{cause}", size_rad=map_distance(r, best),
