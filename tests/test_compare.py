@@ -6,6 +6,7 @@ import copy
 import ctypes.util
 import json
 import os
+import shlex
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
@@ -289,3 +290,19 @@ def test_a_run_failed_on_both_sides_still_fails_the_gate(run_dir, baseline, tmp_
     assert "FAILED" in out and "RuntimeError: the engine crashed" in out
     failures = ET.parse(junit).getroot().findall(".//failure")
     assert len(failures) == 1 and "the engine crashed" in failures[0].get("message")
+
+
+def test_run_with_a_baseline_prints_the_verdict_and_exits_as_compare(run_dir, baseline, tmp_path, capsys):
+    args = ["run", "dzhanibekov", "--engine", "reference", "--integrator", "euler-quat", "--integrator", "rk4",
+            "--dt", "0.02", "--dt", "0.01", "--quiet", "--no-report", "--jobs", "1"]
+    assert main([*args, "--duration", "0.1", "--out", str(tmp_path / "same"), "--baseline", str(baseline)]) == 0
+    out = capsys.readouterr().out
+    assert f"compared with the baseline {baseline}: OK:" in out
+    # another experiment under the same names: the gate fails, in the terminal and the exit code
+    assert main([*args, "--duration", "0.05", "--out", str(tmp_path / "short"), "--baseline", str(baseline)]) == 1
+    out = capsys.readouterr().out
+    (line,) = [ln for ln in out.splitlines() if ln.startswith("compared with the baseline")]
+    assert "REGRESSION:" in line and "4 not comparable" in line
+    (command,) = [ln for ln in out.splitlines() if ln.startswith("(the changes: freebody compare ")]
+    argv = shlex.split(command[len("(the changes: "):-1])[1:]
+    assert main(argv) == 1 and "NOT COMPARABLE" in capsys.readouterr().out  # runnable as printed

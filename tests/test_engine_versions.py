@@ -10,6 +10,8 @@ import importlib.metadata
 import json
 import math
 import os
+import re
+import shlex
 import sys
 from pathlib import Path
 
@@ -231,6 +233,99 @@ def test_split_sides_renames_both_sides_to_one_engine(two_versions):
     assert base["engines"] == {"fake": "1"} and cur["engines"] == {"fake": "2"}
     with pytest.raises(InputError):
         split_sides(two_versions["doc"], "fake==1", "nope")
+
+
+def _side(doc: dict, name: str, as_name: str | None = None) -> dict:
+    """The runs of one engine name of a document, as a results document of their own (renamed)."""
+    runs = [{**r, "engine": as_name or name} for r in doc["runs"] if r["engine"] == name]
+    return {**doc, "runs": runs, "engines": {as_name or name: doc["engines"][name]}}
+
+
+def test_version_changes_are_findings_linking_to_the_side_by_side_table(two_versions):
+    from freebody.report import findings as fd
+    from freebody.report.render import write_reports
+
+    doc = copy.deepcopy(two_versions["doc"])
+    for r in doc["runs"]:  # an engine default that freebody overrides, moved by the upgrade
+        if r["engine"].startswith("fake=="):
+            r["engine_settings"] = {"damping": {"default": 0.0 if r["engine"] == "fake==1" else 0.05, "set": 0.0}}
+    found = [f for f in fd.find(doc["runs"]) if f.kind == "version-change"]
+    runs = [f for f in found if f.case]
+    assert [(f.case, f.label) for f in runs] == [("dzhanibekov", "fake/rk4")]
+    text = runs[0].text
+    assert text.startswith("from fake==1") and " to fake==2" in text
+    assert "scheme rk4 -> rk4 / rkmk4; observed order" in text
+    (default,) = [f for f in found if not f.case]
+    assert "damping" in default.text and "0.05" in default.text and default.label == "fake"
+    out = two_versions["path"].parent
+    md_path, html_path = write_reports(out, doc)
+    first_screen = md_path.read_text().split("## Verdict per case")[0]
+    assert first_screen.count("changed between engine versions") == 2
+    assert first_screen.count("(report.html#versions)") == 2 and "No finding" not in first_screen
+    html = html_path.read_text()
+    nav = html.split("<nav>", 1)[1].split("</nav>", 1)[0]
+    assert '<a href="#versions">' in nav and '<h2 id="versions">Engine versions side by side' in html
+    items = [li for li in html.split("<li>") if "changed between engine versions" in li]
+    assert len(items) == 2 and all('href="#versions"' in li for li in items)
+
+
+def test_compare_matches_an_engine_across_the_names_of_two_files(two_versions, tmp_path, capsys):
+    """A baseline of ``fake==1`` and current results of the unversioned ``fake`` (version 2): the
+    runs match across the names, and the scheme change is reported as within one file."""
+    doc = two_versions["doc"]
+    base, cur = tmp_path / "base.json", tmp_path / "cur.json"
+    base.write_text(json.dumps(_side(doc, "fake==1")))
+    cur.write_text(json.dumps(_side(doc, "fake==2", "fake")))
+    assert main(["compare", str(base), str(cur)]) == 1
+    out = capsys.readouterr().out
+    assert "fake==1 (baseline) = fake (current)" in out and "SCHEME CHANGED" in out and "MISSING" not in out
+    assert main(["compare", str(base), str(cur), "--json"]) == 1
+    verdict = json.loads(capsys.readouterr().out)
+    n = len(_side(doc, "fake==1")["runs"])
+    assert verdict["counts"]["matched"] == n and verdict["counts"]["missing"] == verdict["counts"]["new"] == 0
+    assert verdict["counts"]["scheme_changed"] == 1
+    assert verdict["engines_matched_across_names"] == [{"engine": "fake", "baseline": "fake==1", "current": "fake"}]
+    assert {"name": "fake", "baseline": "1", "current": "2"} in verdict["versions"]
+    # the same verdicts as the two versions of one file compared with --against
+    assert main(["compare", str(two_versions["path"]), "--engine", "fake==1", "--against", "fake==2", "--json"]) == 1
+    against = json.loads(capsys.readouterr().out)
+    keep = ("case", "integrator", "dt", "what", "verdict")
+    assert ([{k: c[k] for k in keep} for c in verdict["changes"]]
+            == [{k: c[k] for k in keep} for c in against["changes"]])
+
+
+_COMMAND = re.compile(r"freebody (?:baseline|compare|run|report|envs) [^\n`<]*")
+
+
+def _suggested(text: str) -> list[list[str]]:
+    """The freebody commands a text suggests, split as a shell would (argv without 'freebody')."""
+    return [shlex.split(m.group().rstrip(" .)"))[1:] for m in _COMMAND.finditer(text)]
+
+
+def test_every_command_freebody_suggests_is_runnable_as_printed(two_versions, tmp_path, capsys):
+    from freebody.cli import build_parser
+
+    doc = two_versions["doc"]
+    folder = tmp_path / "with space"  # printed paths are quoted for the shell
+    folder.mkdir()
+    base, cur = folder / "base.json", folder / "cur.json"
+    base.write_text(json.dumps(_side(doc, "fake==1")))
+    cur.write_text(json.dumps(_side(doc, "fake==2", "fake")))
+    assert main(["compare", str(base), str(cur)]) == 1
+    out = capsys.readouterr().out
+    commands = _suggested(out)
+    assert commands and commands[-1][:1] == ["baseline"], out  # how to accept the change
+    assert main(["compare", str(two_versions["path"]), "--engine", "fake==1", "--against", "fake==2"]) == 1
+    against = capsys.readouterr().out
+    assert "[fake==1]" in against and all("[" not in " ".join(c) for c in _suggested(against))
+    assert main(["compare", str(base), str(cur), "--json"]) == 1
+    accept = json.loads(capsys.readouterr().out)["accept_command"]
+    assert shlex.split(accept)[1:] == commands[-1]
+    for argv in commands + _suggested(against):
+        build_parser().parse_args(argv)  # argparse exits 2 on a command it cannot read
+        assert main(argv) in (0, 1), argv  # not 2: the paths and options exist
+    capsys.readouterr()
+    assert main(["compare", str(base), str(cur)]) == 0  # the baseline accepted
 
 
 # --- a real old MuJoCo in a real environment (slow: builds it with pip on first use) ---------------
