@@ -54,11 +54,12 @@ two variants, chosen by ``load_sampling``:
   N m world) is evaluated at every stage's own state (x_i, R(q_i)): a body couple is R(q_i) tau_b,
   a body-point force's arm R(q_i) b, a world-point force's arm p - x_i.  That is how the adapters
   now drive MuJoCo (body couples in ``qfrc_applied[3:6]``, point forces through ``mjcb_control``
-  at every RK4 stage), MJX on cases without point forces, and the reference ``rk4`` / ``rkmk4``.
+  at every RK4 stage), Drake (a system computing the wrench from the plant's state), MJX on cases
+  without point forces, and the reference ``rk4`` / ``rkmk4``.
 - ``per-step``: the wrench is evaluated ONCE, at the state at the start of step k (arms from x_k
   and R_k), and held over the step: every stage sees the same world force and world torque.  That
   is what an adapter that writes a world wrench before each step gives a multi-stage scheme
-  (Newton's mujoco-rk4, MJX with point forces, Drake until its adapter turns the loads per stage);
+  (Newton's mujoco-rk4, MJX with point forces; Drake's adapter before issue 26);
   such a run is first order under a load that turns with the body.
 
 Identification compares each run with the variant of its engine's declared rule
