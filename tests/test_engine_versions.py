@@ -345,8 +345,11 @@ ORDER_TOLERANCE = 0.3  # |fitted - nominal| of RK4's orientation order at ORDER_
 
 @pytest.fixture(scope="module")
 def env_root(tmp_path_factory):
-    """A FREEBODY_ENV_DIR of this module: the environment is built once for its tests."""
-    root = tmp_path_factory.mktemp("envs")
+    """A FREEBODY_ENV_DIR of this module: the environment is built once for its tests
+    (FREEBODY_TEST_ENV_DIR: a folder of environments built before, e.g. ~/.cache/freebody/envs,
+    reused instead; the first test then finds its environment built)."""
+    root = Path(os.environ["FREEBODY_TEST_ENV_DIR"]) if os.environ.get("FREEBODY_TEST_ENV_DIR") \
+        else tmp_path_factory.mktemp("envs")
     old = os.environ.get("FREEBODY_ENV_DIR")
     os.environ["FREEBODY_ENV_DIR"] = str(root)
     for f in (engine_envs.environment, engine_envs.describe):
@@ -372,7 +375,8 @@ def test_two_mujoco_versions_side_by_side_in_one_run(env_root, tmp_path, capsys)
                  "--out", str(tmp_path / "out"), "--quiet"])
     captured = capsys.readouterr()
     assert code == 0, captured.err
-    assert f"creating environment for {old}" in captured.err  # built on first use, progress shown
+    if not os.environ.get("FREEBODY_TEST_ENV_DIR"):
+        assert f"creating environment for {old}" in captured.err  # built on first use, progress shown
     doc = json.loads((tmp_path / "out" / "results.json").read_text())
     assert doc["engines"] == {old: OLD_MUJOCO, new: have}
     runs = {(r["engine"], r["integrator"], r["dt"]): r for r in doc["runs"]}
@@ -434,3 +438,38 @@ def test_an_engine_registered_with_an_environment_always_runs_there(env_root, tm
     assert code == 0, (captured.err, doc["runs"][0]["message"])
     assert doc["engines"] == {"mujoco-old": OLD_MUJOCO}
     assert [r["engine_version"] for r in doc["runs"]] == [OLD_MUJOCO]
+
+
+@pytest.mark.slow
+def test_an_upgrade_gates_against_a_baseline_of_the_pinned_version(env_root, tmp_path, capsys):
+    """A baseline stored from ``--engine mujoco==3.1.6`` against a plain ``--engine mujoco`` run
+    (the installed version): the runs match across the names and the verdict reports what a run
+    of both versions side by side reports as findings: implicitfast's scheme, RK4's scheme and order."""
+    have = _installed("mujoco")
+    if have is None or have == OLD_MUJOCO:
+        pytest.skip(f"needs a MuJoCo other than {OLD_MUJOCO} installed here (have {have})")
+    old = f"mujoco=={OLD_MUJOCO}"
+    common = ["convergence_tumbling", "--integrator", "mujoco:implicitfast", "--integrator", "mujoco:RK4",
+              "--quiet", "--jobs", "1"]
+    assert main(["run", *common, "--engine", old, "--no-report", "--out", str(tmp_path / "old")]) == 0
+    assert main(["baseline", str(tmp_path / "old"), "--to", str(tmp_path / "base.json")]) == 0
+    assert main(["run", *common, "--engine", "mujoco", "--no-report", "--out", str(tmp_path / "new")]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(tmp_path / "base.json"), str(tmp_path / "new"), "--json"]) == 1
+    verdict = json.loads(capsys.readouterr().out)
+    assert verdict["engines_matched_across_names"] == [{"engine": "mujoco", "baseline": old, "current": "mujoco"}]
+    assert verdict["counts"]["missing"] == verdict["counts"]["new"] == 0 and verdict["counts"]["matched"] == 8
+    moved = {(c["integrator"], c["verdict"]) for c in verdict["changes"] if c["fails"]}
+    assert {("implicitfast", "scheme changed"), ("RK4", "scheme changed"), ("RK4", "order changed")} <= moved
+    (order,) = [c for c in verdict["changes"] if c["verdict"] == "order changed"]
+    assert abs(order["baseline"] - 2) < ORDER_TOLERANCE and abs(order["current"] - 4) < ORDER_TOLERANCE
+
+    # both versions in one run: the same changes are findings on the report's first screen
+    assert main(["run", *common, "--engine", old, "--engine", "mujoco", "--out", str(tmp_path / "both")]) == 0
+    first = (tmp_path / "both" / "report.md").read_text().split("## Verdict per case")[0]
+    lines = [ln for ln in first.splitlines() if "changed between engine versions" in ln]
+    rk4 = [ln for ln in lines if "mujoco/RK4" in ln]
+    fast = [ln for ln in lines if "mujoco/implicitfast" in ln]
+    assert rk4 and "scheme rk4-body-exp -> rkmk4-body" in rk4[0] and "observed order 2." in rk4[0]
+    assert fast and "scheme semi-implicit-explicit-gyro" in fast[0] and "report.html#versions" in fast[0]
+    assert "No finding" not in first
