@@ -514,11 +514,13 @@ def group_summaries(cmp: Comparison, b_runs: dict, c_runs: dict) -> list[dict]:
     ``mujoco/implicitfast 3.1.6 -> 4.0.0: scheme semi-implicit-explicit-gyro -> semi-implicit-implicit-gyro; 3 runs worse, 2 better``."""
     groups: dict[tuple, dict] = {}
     for ch in cmp.changes:
-        if ch.verdict == "same":
+        if ch.verdict == "same" and not ch.failed_now:
             continue
         g = groups.setdefault(ch.key[1:4], {"worse": set(), "better": set(), "not comparable": set(),
                                              "scheme changed": set(), "missing": set(), "new": set(),
-                                             "orders": []})
+                                             "failed": set(), "orders": []})
+        if ch.failed_now:  # failed in the current results (new, newly or still failed)
+            g["failed"].add(ch.key)
         if ch.verdict == "order changed":
             g["orders"].append(f"order {ch.baseline:g} -> {ch.current:g} on {ch.key[0]}")
             continue
@@ -543,7 +545,7 @@ def group_summaries(cmp: Comparison, b_runs: dict, c_runs: dict) -> list[dict]:
             parts.append(f"scheme changed in {len(g['scheme changed'])} of its runs")
         parts += orders
         for name, word in (("worse", "worse"), ("better", "better"), ("not comparable", "not comparable"),
-                           ("missing", "missing"), ("new", "new")):
+                           ("missing", "missing"), ("new", "new"), ("failed", "failed now")):
             if g[name]:
                 n = len(g[name])
                 parts.append(f"{n} run{'' if n == 1 else 's'} {word}")

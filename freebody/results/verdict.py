@@ -15,7 +15,7 @@ The JSON verdict (schema :data:`VERDICT_SCHEMA_VERSION`, documented in docs/ci-g
      "accept_command": "freebody baseline CURRENT --to BASELINE --force" | null,
      "groups": [{"engine", "integrator", "precision", "baseline_version", "current_version",
                  "baseline_scheme", "current_scheme", "worse", "better", "not_comparable",
-                 "scheme_changed", "missing", "new", "text"}],
+                 "scheme_changed", "missing", "new", "failed", "text"}],
      "changes": [{"case", "engine", "integrator", "precision", "dt" (null: a whole group),
                   "what", "baseline", "current", "limit", "verdict", "fails", "note"}]}
 
