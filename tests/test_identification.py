@@ -211,12 +211,17 @@ def test_mujoco_euler_is_its_map_on_a_chaotic_horizon():
 @requires_mujoco
 @pytest.mark.slow
 def test_mujoco_euler_is_its_map_after_a_million_steps():
-    """The issue's example (~20 s, 1.6 GB): 1e6 steps at dt 1e-3, its own map 0.53 rad away after
-    round-off growth: the old rule identified nothing."""
+    """~20 s, 1.6 GB: 1e6 steps at dt 1e-3, its own map 0.53 rad away after round-off growth.  The
+    map's level reaches SCHEME_ROUNDOFF_LEVEL_MAX_RAD before the end, so from there round-off, not
+    the scheme, decides the orientation: 'undecidable', never a tie; still the closest map, within
+    its level on every sample before the cap, while every other map is 1e8 levels away there."""
     pb, dt, n = load_case("dzhanibekov"), 0.001, 1_000_000
     m = _identify(pb, _engine_run("mujoco", pb, "Euler", dt, n), "Euler", dt, n)
     assert m["max_orientation_diff_rad"] > OLD_FIXED_THRESHOLD_RAD
-    assert m["integrator"] == "semi-implicit-explicit-gyro" and m["indistinguishable"] == [m["integrator"]]
+    assert m["verdict"] == "undecidable" and m["integrator"] is None and m["indistinguishable"] == []
+    assert m["closest"] == "semi-implicit-explicit-gyro" and m["closest"] in m["undecidable"]
+    assert m["ratios"]["semi-implicit-explicit-gyro"] <= 1
+    assert min(v for k, v in m["ratios"].items() if k not in m["undecidable"] and v) > 1e6
 
 
 # --- the round-off level -------------------------------------------------------------------------
@@ -380,6 +385,21 @@ def test_a_run_nearer_another_map_than_round_off_reproduces_neither():
     assert m["indistinguishable"] == []
     # A nearer by less than B's round-off (1e-7 rad): B is reproduced
     maps["lie-euler"] = _turned(q, 1.05e-6)
+    m = _identification(maps, spreads, q)
+    assert m["verdict"] == "reproduces" and m["integrator"] == "lie-euler", m["ratios"]
+
+
+def test_a_run_between_two_maps_is_only_closest_to_one():
+    """Map A is within its level (ratio 0.9) and map B just outside its own (ratio 1.5), on the
+    other side of the run: the run sits between them, so A is only 'closest' (MJX RK4 float32
+    dzhanibekov was 'reproduces quat-rate-rk2' so); with B ten levels away A is reproduced."""
+    q = _spin()
+    spreads = {"lie-euler": np.full(len(q), 1e-7), "rk4": np.full(len(q), 1e-7)}  # levels 1e-5 rad
+    maps = {"lie-euler": _turned(q, 0.9e-5), "rk4": _turned(q, -1.5e-5)}
+    m = _identification(maps, spreads, q)
+    assert m["ratios"]["lie-euler"] <= 1 < m["ratios"]["rk4"] < tol.SCHEME_SEPARATION_RATIO * m["ratios"]["lie-euler"]
+    assert m["verdict"] == "closest" and m["closest"] == "lie-euler" and m["integrator"] is None
+    maps["rk4"] = _turned(q, -1e-4)
     m = _identification(maps, spreads, q)
     assert m["verdict"] == "reproduces" and m["integrator"] == "lie-euler", m["ratios"]
 

@@ -668,6 +668,13 @@ class _Identification:
             nearer = d_best is None or any(v < d_best - margin for k, v in finite.items() if k not in tie)
             if nearer:  # another map is nearer the run by more than round-off: no verdict of a map
                 tie = []
+            elif len(tie) == 1 and any(
+                    r is not None and k not in undecidable
+                    and r < tol.SCHEME_SEPARATION_RATIO * max(ratios[best], tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+                    for k, r in ratios.items() if k != best):
+                # a lone map must stand out: the run sits between maps, not on one, when the next
+                # map (outside its level) is nearly as near in units of its own level
+                tie = []
         tie = [k for k in SCHEME_CANDIDATES if k in tie]
         if tie:
             verdict = VERDICT_REPRODUCES if len(tie) == 1 else VERDICT_INDISTINGUISHABLE
