@@ -214,6 +214,38 @@ def test_schema_1_baseline_still_reads_and_says_content_unchecked(runs, baseline
     assert "steps 40 -> 20" in capsys.readouterr().out
 
 
+def _schema_3(doc):
+    """The document as freebody 0.2.0 before schema 4 wrote it: no verdict, load sampling, state
+    growth or state_dependent_loads."""
+    doc["schema_version"] = 3
+    for r in doc["runs"]:
+        for key in ("load_sampling", "state_growth"):
+            r.pop(key, None)
+        if isinstance(r.get("matches_reference"), dict):
+            for key in ("verdict", "undecidable"):
+                r["matches_reference"].pop(key, None)
+    for c in doc.get("cases", {}).values():
+        c.pop("state_dependent_loads", None)
+
+
+def test_schema_3_baseline_is_migrated_on_load_and_still_gates(runs, baseline, tmp_path, capsys):
+    """A stored schema-3 baseline keeps working after the upgrade: its runs get the verdict their
+    keys imply (migrate), and comparing it with today's runs of the same experiment passes."""
+    from freebody.results.document import SCHEMA_VERSION, load_results
+
+    old = _edited(baseline, tmp_path, _schema_3, "old3.json")
+    doc = load_results(old)
+    assert doc["schema_version"] == 3 < SCHEMA_VERSION
+    judged = [r for r in doc["runs"] if isinstance(r.get("matches_reference"), dict)]
+    assert judged and all(r["matches_reference"]["verdict"] in ("reproduces", "indistinguishable", "closest",
+                                                                  "undecidable") for r in judged)
+    now = {(r["engine"], r["integrator"], r["dt"]): r["matches_reference"]["verdict"]
+           for r in load_results(runs["long"] / "results.json")["runs"] if r.get("matches_reference")}
+    assert {(r["engine"], r["integrator"], r["dt"]): r["matches_reference"]["verdict"] for r in judged} == now
+    assert main(["compare", str(old), str(runs["long"])]) == 0
+    assert "OK:" in capsys.readouterr().out
+
+
 def test_baseline_of_failed_runs_refused_unless_asked(runs, tmp_path, capsys):
     def all_failed(doc):
         for r in doc["runs"]:

@@ -1,8 +1,8 @@
-"""results.json (schema version 3) and the per-run trajectory files, written atomically.
+"""results.json (schema version 4) and the per-run trajectory files, written atomically.
 
 results.json::
 
-    {"schema_version": 3, "freebody_version", "created", "platform", "engines": {name: version},
+    {"schema_version": 4, "freebody_version", "created", "platform", "engines": {name: version},
      "incomplete": false, "runs": [RunResult.to_json(), ...], ...}
 
 Schema 2 added each run's ``experiment`` (what was simulated: :mod:`freebody.run.experiment`)
@@ -14,6 +14,16 @@ Schema 3 added, in ``cases``, ``defaults``: the optional case-file keys a case l
 by default (e.g. ``world.gravity``: no ``[world]``, no gravity), and engine names may carry a
 version (``mujoco==3.1.6``, an engine run in an isolated environment).  Schema 2 and 1 documents
 are still read (a case without ``defaults`` says nothing about them).
+
+Schema 4 (issue 26: verdicts that never mislead) added, per run, ``load_sampling`` (how the
+engine's step saw the loads: ``per-stage`` | ``per-step``, null without loads), ``state_growth``
+(how far |w| and the kinetic energy grew beyond the truth's, the blow-up time, the largest rotation
+per step and the engine's declared cap) and, in ``matches_reference``, ``verdict``
+(``reproduces`` | ``indistinguishable`` | ``closest`` | ``undecidable``) and ``undecidable``; in
+``cases``, ``state_dependent_loads``.  Older documents are migrated on load (:func:`migrate`): each
+run's ``matches_reference`` gets the verdict its other keys imply
+(:func:`freebody.results.identification.verdict`); the other new keys stay absent, and readers
+treat an absent key as unknown.
 
 Renamed reference integrators (``symplectic-euler`` is now ``lie-euler``) do not change the format
 and bump no schema version: every document read, of either version, has the old names replaced by
@@ -47,8 +57,8 @@ from ..reference_impl.conventions import Trajectory
 from ..reference_impl.integrators import INTEGRATOR_ALIASES
 from .io import read_json, write_npz_atomic
 
-SCHEMA_VERSION = 3
-READABLE_SCHEMA_VERSIONS = (1, 2, 3)  # results.json / baseline versions this freebody reads
+SCHEMA_VERSION = 4
+READABLE_SCHEMA_VERSIONS = (1, 2, 3, 4)  # results.json / baseline versions this freebody reads
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
 
 
@@ -282,7 +292,33 @@ def check_results(doc, where: str) -> dict:
         raise InputError(f"{where}: runs: missing or not a list")
     for i, r in enumerate(runs):
         _check_run(r, f"{where}: runs[{i}]", STATUSES)
-    return upgrade_names(doc)
+    return upgrade_names(migrate(doc))
+
+
+def _update_to_4(doc: dict) -> dict:
+    """Schema 3 -> 4: each run's ``matches_reference`` gets its ``verdict`` (derived from its
+    other keys, as those files' readers took them)."""
+    from .identification import verdict
+
+    for r in doc.get("runs", []):
+        m = r.get("matches_reference") if isinstance(r, dict) else None
+        if isinstance(m, dict) and "verdict" not in m:
+            r["matches_reference"] = {**m, "verdict": verdict(m)}
+    return doc
+
+
+# One step per schema version (asv's update_to_N): step N brings a document of version N - 1 to N;
+# versions 1 -> 3 needed no step (their new keys are optional).
+_MIGRATIONS = {4: _update_to_4}
+
+
+def migrate(doc: dict) -> dict:
+    """``doc`` brought up to :data:`SCHEMA_VERSION`, one step per version it is behind (its
+    ``schema_version`` is kept: it says what was written)."""
+    v = doc.get("schema_version")
+    for target in range(int(v) + 1, SCHEMA_VERSION + 1):
+        doc = _MIGRATIONS.get(target, lambda d: d)(doc)
+    return doc
 
 
 # The fields of a run's matches_reference that hold a reference map's name, a list of them, an
