@@ -279,6 +279,16 @@ def test_compare_names_the_import_error_in_text_json_and_junit(broken_engine, tm
         assert LOADER_ERROR in failure.get("message") and LOADER_ERROR in failure.text
 
 
+def test_a_baseline_of_a_broken_engine_names_its_import_error(broken_engine, tmp_path):
+    """`freebody baseline` of runs whose engine failed to import says 'failed (OSError ...)' for
+    that engine, never 'not installed'."""
+    stored = _plugin_freebody("baseline", broken_engine["bad"], "--to", tmp_path / "b.json",
+                              "--allow-no-ok-runs", healthy=False)
+    assert stored.returncode == 0, stored.stderr
+    line = stored.stdout.strip().splitlines()[0]
+    assert f"{BROKEN} failed (" in line and "OSError" in line and "not installed" not in line, line
+
+
 def test_a_run_failed_on_both_sides_still_fails_the_gate(run_dir, baseline, tmp_path, capsys):
     def broke(doc):
         doc["runs"][1].update(status="failed", message="RuntimeError: the engine crashed")

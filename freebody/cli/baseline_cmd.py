@@ -29,7 +29,9 @@ def run(args) -> int:
     import sys
 
     base = store_baseline(args.dir, args.to, force=args.force, allow_no_ok_runs=args.allow_no_ok_runs)
-    engines = ", ".join(f"{e} {v or 'not installed'}" for e, v in (base.get("engines") or {}).items())
+    from ..results.compare import engine_version_words
+
+    engines = ", ".join(f"{e} {v}" for e, v in engine_version_words(base).items())
     print(f"baseline: {args.to} ({len(base['runs'])} runs; engines: {engines or 'none'})")
     for line in baseline_warnings(base):
         print(f"warning: {line}", file=sys.stderr)

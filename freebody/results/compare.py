@@ -278,20 +278,24 @@ def _index(runs: list[dict]) -> dict[tuple, dict]:
     return out
 
 
-def _versions(base: dict, cur: dict) -> list[tuple[str, str, str]]:
-    def of(doc):
-        failed: dict[str, str] = {}  # engine -> why its runs failed (an engine that fails to import)
-        for r in doc.get("runs") or []:
-            if r.get("status") == Status.FAILED and isinstance(r.get("engine"), str):
-                failed.setdefault(r["engine"], str(r.get("message") or "no reason recorded"))
-        v = {e: (str(x) if x else f"failed ({cap(failed[e], VERSION_REASON_CHARS)})" if e in failed
-                 else "not installed") for e, x in (doc.get("engines") or {}).items()}
-        for r in doc.get("runs") or []:
-            if r.get("engine_version"):
-                v.setdefault(r["engine"], str(r["engine_version"]))
-        return v
+def engine_version_words(doc: dict) -> dict[str, str]:
+    """engine -> its version in a results document, or why it has none: 'failed (<reason>)' for an
+    engine whose runs failed without a version (e.g. installed but failing to import), else
+    'not installed'."""
+    failed: dict[str, str] = {}  # engine -> why its runs failed (an engine that fails to import)
+    for r in doc.get("runs") or []:
+        if r.get("status") == Status.FAILED and isinstance(r.get("engine"), str):
+            failed.setdefault(r["engine"], str(r.get("message") or "no reason recorded"))
+    v = {e: (str(x) if x else f"failed ({cap(failed[e], VERSION_REASON_CHARS)})" if e in failed
+             else "not installed") for e, x in (doc.get("engines") or {}).items()}
+    for r in doc.get("runs") or []:
+        if r.get("engine_version"):
+            v.setdefault(r["engine"], str(r["engine_version"]))
+    return v
 
-    b, c = of(base), of(cur)
+
+def _versions(base: dict, cur: dict) -> list[tuple[str, str, str]]:
+    b, c = engine_version_words(base), engine_version_words(cur)
     rows = [("freebody", *(str(d.get("freebody_version") or "-") for d in (base, cur)))]
     return rows + [(e, b.get(e, "-"), c.get(e, "-")) for e in dict.fromkeys([*b, *c])]
 
