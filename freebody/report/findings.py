@@ -1024,8 +1024,9 @@ FINDINGS_NOTE = ("Computed from the runs (nothing is written by hand per engine)
                  "(x{:g} the median of the runs of the same or lower order at that case and dt), a run "
                  "that reproduces another map on one case, ported engines against their original, a |w| or "
                  "kinetic energy that blew up beyond {:g}x / {:g}x the truth's, a rotation per step beyond "
-                 "the engine's cap, an observed order more than {:g} from the expected one, and runs "
-                 "that failed, diverged or were skipped.  Each names the results field that raised it "
+                 "the engine's cap, an observed order more than {:g} from the expected one, a scheme, order "
+                 "or default that changed between two versions of an engine, runs that no map can "
+                 "identify on their case (undecidable), and runs that failed, diverged or were skipped.  Each names the results field that raised it "
                  "and links to the run's plots.").format(OUTLIER_FACTOR, tol.BLOW_UP_OMEGA_FACTOR,
                                                           tol.BLOW_UP_ENERGY_FACTOR, ORDER_MISMATCH)
 NO_FINDINGS = ("No finding: every engine run reproduces a reference map, runs of one map agree, no error "
