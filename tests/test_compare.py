@@ -316,3 +316,20 @@ def test_run_with_a_baseline_prints_the_verdict_and_exits_as_compare(run_dir, ba
     (command,) = [ln for ln in out.splitlines() if ln.startswith("(the changes: freebody compare ")]
     argv = shlex.split(command[len("(the changes: "):-1])[1:]
     assert main(argv) == 1 and "NOT COMPARABLE" in capsys.readouterr().out  # runnable as printed
+
+
+def test_a_lost_orientation_names_no_closest_map_in_compare():
+    """A run that reproduces no map and is beyond CONVERGENCE_ORIENTATION_SATURATED_RAD from the
+    nearest is 'none (orientation lost)' in compare's scheme text, as in the report: every map is
+    about as far, so naming the closest would mislead; a run near its closest map still names it."""
+    from freebody import tolerances as tol
+    from freebody.results.compare import scheme_text
+
+    def run(d):
+        return {"matches_reference": {"verdict": "closest", "integrator": None, "closest": "rk4",
+                                      "max_orientation_diff_rad": d, "indistinguishable": []}}
+
+    assert scheme_text((), run(3.1)) == "none (orientation lost)"
+    assert scheme_text((), run(None)) == "none (orientation lost)"
+    near = 0.5 * tol.CONVERGENCE_ORIENTATION_SATURATED_RAD
+    assert scheme_text((), run(near)) == "none (closest rk4)"

@@ -348,8 +348,11 @@ def scheme_text(scheme: tuple[str, ...] | None, run: dict | None = None) -> str:
     if scheme is None:
         return "-"
     if not scheme:
-        closest = ((run or {}).get("matches_reference") or {}).get("closest")
-        return f"none (closest {closest})" if closest else "none"
+        m = (run or {}).get("matches_reference") or {}
+        d = finite_or_none(m.get("max_orientation_diff_rad"))
+        if m.get("closest") and (d is None or d > tol.CONVERGENCE_ORIENTATION_SATURATED_RAD):
+            return "none (orientation lost)"  # every map is about as far: naming the closest misleads
+        return f"none (closest {m['closest']})" if m.get("closest") else "none"
     return " = ".join(scheme)
 
 
