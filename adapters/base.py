@@ -444,6 +444,8 @@ def base_engine(name: str) -> str:
     """The registered engine of a name, versioned or not (case-insensitive; an engine's pip
     distribution works too: ``dartpy==6.19.0`` -> ``"dart"``); UnknownEngine otherwise."""
     given, _ = split_engine_name(name)
+    if given in ENGINES:  # a built-in's own spelling: no entry-point scan (registry() lists it first)
+        return given
     reg = registry()
     for known in reg:
         if known.lower() == given.lower():
@@ -545,7 +547,9 @@ def load_adapter(name: str) -> type[Adapter]:
     a broken install raises its real error, to be recorded as a failed run).
     """
     name = base_engine(name)
-    entry = registry()[name]
+    # a built-in engine wins over a plug-in of its name (registry()), so only the others need the
+    # entry-point scan (about 14 ms a call, and the judge asks per run)
+    entry = ENGINES[name] if name in ENGINES else registry()[name]
     import_name, module, cls, hint = entry.import_name, entry.module, entry.cls, entry.install_hint
     try:
         mod = importlib.import_module(module)
