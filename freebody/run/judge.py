@@ -21,6 +21,7 @@ from ..reference_impl.problem import InitialState, Problem
 from ..reference_impl.rotations import geodesic_angle
 from ..reference_impl.truth import truth_trajectory
 from ..results.document import prefix_end, select_saved
+from ..results import identification  # the verdicts' names, read by every reader
 from .metrics import (DIVERGENCE_KINDS, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, ROTATION_ORTHONORMALITY_ERROR_MAX,
                       STAT_ARRAYS, Scales, Series, SeriesStats, divergence_bounds, divergence_decision,
                       divergence_firsts, series, truth_scales, GrowthStats)
@@ -139,7 +140,7 @@ def step_rotation_cap(spec: RunSpec) -> float | None:
     if spec.is_reference:
         return None
     try:
-        return getattr(load_adapter(spec.engine), "step_rotation_cap_rad", None)
+        return load_adapter(spec.engine).step_rotation_cap_rad
     except Exception:
         return None
 
@@ -534,13 +535,6 @@ def identification_rule(precision: str = "float64") -> str:
             f"identifies nothing (undecidable)")
 
 
-# matches_reference["verdict"]: what identification concludes about a run
-VERDICT_REPRODUCES = "reproduces"  # one map within its level, no other map nearer by more than round-off
-VERDICT_INDISTINGUISHABLE = "indistinguishable"  # several maps within their levels of the run and of each other
-VERDICT_CLOSEST = "closest"  # no map reproduces the run: the nearest one (closest), how far, its ratio
-VERDICT_UNDECIDABLE = "undecidable"  # the maps near the run cannot identify anything on this case
-
-
 def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCache) -> dict:
     """Which reference map this engine run reproduces to round-off, or the closest and how far.
 
@@ -677,11 +671,11 @@ class _Identification:
                 tie = []
         tie = [k for k in SCHEME_CANDIDATES if k in tie]
         if tie:
-            verdict = VERDICT_REPRODUCES if len(tie) == 1 else VERDICT_INDISTINGUISHABLE
+            verdict = identification.REPRODUCES if len(tie) == 1 else identification.INDISTINGUISHABLE
         elif nearest is None or nearest in undecidable or (not reproduced and undecidable):
-            verdict = VERDICT_UNDECIDABLE
+            verdict = identification.UNDECIDABLE
         else:
-            verdict = VERDICT_CLOSEST
+            verdict = identification.CLOSEST
         closest = tie[0] if tie else nearest
         return {"verdict": verdict, "integrator": tie[0] if tie else None, "closest": closest,
                 "max_orientation_diff_rad": finite.get(closest), "candidates": dict(diffs),
