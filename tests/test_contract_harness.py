@@ -2,16 +2,18 @@
 (``tests/fake_engines/batching_adapter.py``, registered as ``batcher``): ``freebody sweep`` steps
 the bodies of such an engine as one batch per (integrator, precision, dt, steps), through the
 adapter class's ``simulate_batch``, and the results are those of each body run alone.  The fake
-engine itself passes the conformance checks of ``test_adapter_conformance.py``."""
+engine itself passes the shipped conformance suite (a subclass of
+:class:`freebody.testing.AdapterConformance`: every check, a new one included)."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
 
-import test_adapter_conformance as conformance
 from fake_engines.batching_adapter import INTEGRATOR, REGISTRY_ENTRY, BatchingAdapter
 from freebody.adapters import base
+from freebody.testing import AdapterConformance
+from freebody.testing.conformance import assert_identical
 from freebody.run import execute, expand
 from freebody.tools.sweep import SweepSettings, _batched_outputs, random_bodies, run_bodies, sweep
 
@@ -34,7 +36,7 @@ def batcher(monkeypatch):
 def test_the_fake_engine_is_registered_and_declares_batching(batcher):
     assert batcher in base.engine_names() and base.is_available(batcher)
     assert base.load_adapter(batcher) is BatchingAdapter
-    assert BatchingAdapter.supports_batch()
+    assert BatchingAdapter.supports_batch
 
 
 def test_sweep_batches_a_batching_engine_once_per_group(batcher):
@@ -51,7 +53,7 @@ def test_sweep_batches_a_batching_engine_once_per_group(batcher):
     for spec in specs:
         sim, compare_with = outputs[id(spec)]
         alone = BatchingAdapter(spec.problem, spec.dt, spec.integrator, spec.precision)
-        conformance.assert_identical(sim.trajectory, alone.simulate(spec.steps),
+        assert_identical(sim.trajectory, alone.simulate(spec.steps),
                                      f"{spec.problem.name}: batched vs alone")
         assert sim.diverged_at is None and compare_with is None
         assert sim.settings == alone.settings
@@ -84,32 +86,19 @@ def test_a_sweep_with_batching_and_non_batching_engines(batcher, tmp_path):
     assert all(r["status"] == "ok" for r in runs), [r["message"] for r in runs]
 
 
-@pytest.mark.parametrize("check", [
-    conformance.test_state_read_back_at_t0_is_the_initial_state,
-    conformance.test_settings_are_recorded_and_serialisable,
-    conformance.test_chunked_stepping_equals_one_shot_bit_for_bit,
-    conformance.test_advance_moves_k_and_returns_the_samples_from_k,
-    conformance.test_batched_stepping_equals_one_shot_to_round_off,
-    conformance.test_bare_loop_is_none_or_runs,
-], ids=lambda f: f.__name__.removeprefix("test_"))
-def test_the_fake_engine_passes_the_conformance_checks(batcher, check):
-    check(conformance.Offer(batcher, INTEGRATOR, "float64"))
+class TestTheFakeEngineConformance(AdapterConformance):
+    """The shipped conformance suite on the fake engine, whose adapter class is given directly
+    (its module is importable from tests/ only) and registered while each check runs."""
 
+    engine = "batcher"
 
-@pytest.mark.parametrize("kind", conformance.PUSHES)
-def test_the_fake_engine_passes_the_push_checks(batcher, kind):
-    conformance.test_one_step_push_changes_momenta_by_its_impulse(
-        conformance.Offer(batcher, INTEGRATOR, "float64"), kind)
+    @classmethod
+    def adapter_class(cls):
+        return BatchingAdapter
 
-
-def test_the_fake_engine_blows_up_as_diverged(batcher):
-    conformance.test_blow_up_is_diverged_with_the_trajectory_up_to_it(
-        conformance.Offer(batcher, INTEGRATOR, "float64"))
-
-
-def test_the_fake_engine_passes_the_engine_level_checks(batcher):
-    conformance.test_capabilities_are_well_formed(batcher)
-    conformance.test_offered_precisions_build_and_others_are_refused(batcher)
+    @pytest.fixture(autouse=True)
+    def _registered(self, batcher):
+        """The checks that go through the harness (``execute``, ``registry()``) look it up."""
 
 
 # --- the harness knows engines only through the contract ---------------------------------------
