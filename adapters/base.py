@@ -118,6 +118,8 @@ class Adapter(ABC):
     # ANGULAR_MOTION_THRESHOLD, pi/4); None: no cap.  A run whose |w| dt exceeds it is recorded
     # (results.json state_growth) and its findings name the cap.
     step_rotation_cap_rad: ClassVar[float | None] = None
+    # Whether :meth:`simulate_batch` steps many bodies at once (``freebody sweep`` asks).
+    supports_batch: ClassVar[bool] = False
 
     def __init__(self, problem: Problem, dt: float, integrator: str, precision: str = "float64"):
         offered = self.offered_integrators()
@@ -213,11 +215,6 @@ class Adapter(ABC):
         reads ``steps`` times on this adapter's world, with none of the adapter's work; None
         when the engine has no such loop (bench then skips its overhead figure)."""
         return None
-
-    @classmethod
-    def supports_batch(cls) -> bool:
-        """Whether :meth:`simulate_batch` steps many bodies at once (``freebody sweep`` asks)."""
-        return False
 
     @classmethod
     def simulate_batch(cls, problems: list[Problem], dt: float, steps: int, integrator: str,
@@ -335,7 +332,7 @@ class EngineEntry(NamedTuple):
         (``mujoco==3.1.6``, see :func:`split_engine_name`); None: ``import_name``.
     environment : a pip requirement: the engine always runs in an isolated environment of its own
         holding it (an engine whose package pins conflict with another engine's, e.g. one that
-        pins an older MuJoCo), see :mod:`freebody.run.engine_envs`; None: this environment.
+        pins an older MuJoCo), see :mod:`freebody.envs.engines`; None: this environment.
     default : in the engines ``freebody run`` runs when none is named (fast ones); False: only
         when named with ``--engine`` or with ``--all-engines`` (seconds per run, long first compiles).
     """

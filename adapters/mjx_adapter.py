@@ -91,7 +91,7 @@ auto-reset: a blow-up grows until the state is non-finite, and ``advance`` retur
 computed (never raising :class:`~freebody.adapters.base.EngineDiverged`); the harness detects it
 (non-finite values, and its bounds on a huge but finite state).
 
-Batches.  ``MjxAdapter.supports_batch()`` is True: :meth:`MjxAdapter.simulate_batch` steps many
+Batches.  ``MjxAdapter.supports_batch`` is True: :meth:`MjxAdapter.simulate_batch` steps many
 bodies as one ``jax.vmap``-ped scan (``freebody sweep`` uses it).  A body's trajectory is its
 single run's up to round-off, not bit for bit: the vmapped step is compiled as another XLA
 computation (a few ulp per step, then grown by the dynamics like any perturbation).
@@ -547,9 +547,7 @@ class MjxAdapter(Adapter):
     def offered_integrators(cls) -> tuple[str, ...]:
         return tuple(n for n, e in _INTEGRATOR_ENUM.items() if hasattr(mjx.IntegratorType, e))
 
-    @classmethod
-    def supports_batch(cls) -> bool:
-        return True
+    supports_batch: ClassVar[bool] = True
 
     @classmethod
     def run_load_sampling(cls, problem: Problem) -> str | None:

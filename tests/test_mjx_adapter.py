@@ -231,7 +231,7 @@ def test_simulate_batch_equals_single_runs():
                 Problem("plain", "", Body(0.7, np.diag([1.0, 2.0, 3.0])),
                         InitialState([0, 0, 0], [1, 0, 0, 0], [1.0, 0, 0], [0.01, 5.0, 0.0]),
                         [0.0, 0.0, -1.0], duration=1.0)]
-    assert MjxAdapter.supports_batch()
+    assert MjxAdapter.supports_batch
     batch = MjxAdapter.simulate_batch(problems, DT, n, "Euler", "float64")
     assert len(batch.trajectories) == 3 and batch.diverged_at_s == [None, None, None]
     assert batch.compile_time_s >= 0.0 and batch.step_time_s > 0.0

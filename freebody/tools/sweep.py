@@ -255,7 +255,7 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
     The runs go through :func:`freebody.run.suite.run_specs`, the executor of ``freebody run``:
     ``jobs`` isolated worker processes (``isolate=False``: this process, for debugging), the runs
     of one body at one dt sharing its truth and reference maps (:mod:`freebody.run.sharedcache`).
-    Engines whose adapter steps many bodies at once (``supports_batch()``; mjx: one
+    Engines whose adapter steps many bodies at once (``supports_batch``; mjx: one
     ``jax.vmap``-ped batch per integrator, precision, dt and horizon) do so first, in this
     process; their runs are then judged in the workers like the others, so a batched run's result
     is that of the same run alone.  The numbers do not depend on ``jobs``.
@@ -296,11 +296,11 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
 
 def _batch_classes(engines, progress: bool) -> dict[str, type]:
     """engine -> its adapter class, for the installed engines whose adapter steps bodies as a
-    batch (``supports_batch()``).  An engine that is missing is left out, and so is one whose
+    batch (``supports_batch``).  An engine that is missing is left out, and so is one whose
     adapter fails to load: its runs go one by one and record their own skip or failure.  So does an
     engine that runs in an isolated environment (a version named on the command line): batches
     are stepped in this process, which holds another version of it."""
-    from ..run.engine_envs import isolated
+    from ..envs.engines import isolated
 
     out = {}
     for engine in dict.fromkeys(engines):
@@ -309,7 +309,7 @@ def _batch_classes(engines, progress: bool) -> dict[str, type]:
                 continue
             with capture_output():  # some engines print a banner on import (pybullet)
                 cls = load_adapter(engine)
-            if cls.supports_batch():
+            if cls.supports_batch:
                 out[engine] = cls
         except Exception as e:
             if progress:
@@ -319,7 +319,7 @@ def _batch_classes(engines, progress: bool) -> dict[str, type]:
 
 
 def _batched_outputs(specs: list[RunSpec], progress: bool) -> dict[int, tuple[Simulated, str | None]]:
-    """Step the runs of batch-capable engines (``supports_batch()``) as one batch per (engine,
+    """Step the runs of batch-capable engines (``supports_batch``) as one batch per (engine,
     integrator, precision, dt, steps) with the adapter class's ``simulate_batch``; id(spec) ->
     (its Simulated, the engine it ports).  A batch that cannot run leaves its runs to be stepped one
     by one."""

@@ -1,4 +1,4 @@
-"""A small numpy engine that steps bodies as a batch (``supports_batch()``), for the tests of the
+"""A small numpy engine that steps bodies as a batch (``supports_batch``), for the tests of the
 harness's batching path (``freebody.tools.sweep``) and of the conformance checks.
 
 Registered by the tests in :data:`freebody.adapters.base.ENGINES` as ``batcher``
@@ -127,9 +127,7 @@ class BatchingAdapter(SteppedAdapter):
     def engine_version(cls) -> str:
         return "0-batching"
 
-    @classmethod
-    def supports_batch(cls) -> bool:
-        return True
+    supports_batch: ClassVar[bool] = True
 
     # --- one body (B = 1) ---------------------------------------------------------------------
     def build(self) -> None:
