@@ -16,7 +16,7 @@ from freebody.reference_impl.truth import truth_chunks, truth_trajectory
 from freebody.results.document import load_trajectory, samples_to_save
 from freebody.run import budget
 from freebody.run.execute import _execute_chunked, execute
-from freebody.run.judge import TruthCache, finish
+from freebody.run.judge import TruthCache, judge_run
 from freebody.run.metrics import METRIC_NAMES, series
 from freebody.run.records import RunSpec, Simulated, Status
 from freebody.run.worker import RunTask, Runner
@@ -141,7 +141,7 @@ def test_engine_reported_divergence_chunked_as_whole(monkeypatch):
         _BlowsUp(spec.problem, spec.dt, spec.integrator).simulate(spec.steps)
     except EngineDiverged as e:
         sim = Simulated(e.trajectory, e.t, e.reason, "v", {}, 0.0)
-    whole = finish(spec, sim, TruthCache())
+    whole = judge_run(spec, sim, TruthCache())
     monkeypatch.setattr(tol, "CHUNKED_JUDGING_MIN_STEPS", 10)
     chunked = _execute_chunked(spec, _BlowsUp, True, None, chunk=CHUNK)
     assert whole.result.status == Status.DIVERGED and len(whole.trajectory) == _BlowsUp.BLOW_UP + 1

@@ -21,10 +21,11 @@ from freebody.adapters.base import (UnknownEngine, base_engine, engine_requireme
                                     split_engine_name, unsupported_version, version_in)
 from freebody.adapters.reference import ReferenceAdapter
 from freebody.cli import main
+from freebody.envs import engines as engine_envs
+from freebody.envs.versions import side_by_side, split_sides, version_groups
 from freebody.errors import InputError
 from freebody.input.casefile import load_case
-from freebody.results.versions import side_by_side, split_sides, version_groups
-from freebody.run import engine_envs, executor
+from freebody.run import executor
 from freebody.run.matrix import expand, select_integrators
 from freebody.run.suite import run_specs
 

@@ -1,7 +1,8 @@
-"""freebody.environments and ``freebody envs``: where environments live, their keys, requirement
-checking, listing and clearing, the copy of freebody's source and its digest, reuse of a complete
-environment.  The tests marked ``slow`` need the package index (pip): a requirement that cannot be
-installed, and a real ``mujoco==3.1.6`` environment built, reused, described, listed and cleared."""
+"""freebody.envs (requirements, cache, build, describe) and ``freebody envs``: where environments
+live, their keys, requirement checking, listing and clearing, the copy of freebody's source and its
+digest, reuse of a complete environment.  The tests marked ``slow`` need the package index (pip): a
+requirement that cannot be installed, and a real ``mujoco==3.1.6`` environment built, reused,
+described, listed and cleared."""
 from __future__ import annotations
 
 import json
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 
 import freebody
-from freebody import environments as envs
+from freebody.envs import build, cache, describe, requirements
 from freebody.cli import main
 from freebody.errors import InputError
 
@@ -23,7 +24,7 @@ from freebody.errors import InputError
 def root(tmp_path, monkeypatch) -> Path:
     """An empty FREEBODY_ENV_DIR."""
     folder = tmp_path / "envs"
-    monkeypatch.setenv(envs.ENV_DIR_VARIABLE, str(folder))
+    monkeypatch.setenv(cache.ENV_DIR_VARIABLE, str(folder))
     return folder
 
 
@@ -31,7 +32,7 @@ def fake_environment(root: Path, requirement: str, key: str | None = None, compl
                      **marker) -> Path:
     """A folder that looks like an environment: pyvenv.cfg, bin/python (this interpreter) and, when
     complete, a marker."""
-    folder = root / (key or envs.environment_key(requirement))
+    folder = root / (key or cache.environment_key(requirement))
     (folder / "bin").mkdir(parents=True)
     (folder / "pyvenv.cfg").write_text("home = /usr/bin\n")
     os.symlink(sys.executable, folder / "bin" / "python")
@@ -39,8 +40,8 @@ def fake_environment(root: Path, requirement: str, key: str | None = None, compl
         data = {"requirement": requirement, "created": "2026-01-02T03:04:05+00:00",
                 "last_used": "2026-01-02T03:04:05+00:00", "freebody_version": freebody.__version__,
                 "python": "3.11.7", "installed": {"mujoco": "3.1.6", "numpy": "2.0.0"},
-                "source_digest": "0" * 64, "pins": True, "core": envs.core_versions(), **marker}
-        (folder / envs.MARKER).write_text(json.dumps(data))
+                "source_digest": "0" * 64, "pins": True, "core": build.core_versions(), **marker}
+        (folder / cache.MARKER).write_text(json.dumps(data))
     return folder
 
 
@@ -48,33 +49,33 @@ def fake_environment(root: Path, requirement: str, key: str | None = None, compl
 
 def test_env_root_follows_the_variables(tmp_path, monkeypatch):
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
-    monkeypatch.delenv(envs.ENV_DIR_VARIABLE, raising=False)
+    monkeypatch.delenv(cache.ENV_DIR_VARIABLE, raising=False)
     monkeypatch.delenv("XDG_CACHE_HOME", raising=False)
-    assert envs.env_root() == tmp_path / "home" / ".cache" / "freebody" / "envs"
+    assert cache.env_root() == tmp_path / "home" / ".cache" / "freebody" / "envs"
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    assert envs.env_root() == tmp_path / "xdg" / "freebody" / "envs"
+    assert cache.env_root() == tmp_path / "xdg" / "freebody" / "envs"
     monkeypatch.setenv("XDG_CACHE_HOME", "relative/cache")  # ignored, as the XDG specification says
-    assert envs.env_root() == tmp_path / "home" / ".cache" / "freebody" / "envs"
-    monkeypatch.setenv(envs.ENV_DIR_VARIABLE, str(tmp_path / "mine"))
-    assert envs.env_root() == tmp_path / "mine"
+    assert cache.env_root() == tmp_path / "home" / ".cache" / "freebody" / "envs"
+    monkeypatch.setenv(cache.ENV_DIR_VARIABLE, str(tmp_path / "mine"))
+    assert cache.env_root() == tmp_path / "mine"
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv(envs.ENV_DIR_VARIABLE, "rel")
-    assert envs.env_root() == tmp_path / "rel" and envs.env_root().is_absolute()
+    monkeypatch.setenv(cache.ENV_DIR_VARIABLE, "rel")
+    assert cache.env_root() == tmp_path / "rel" and cache.env_root().is_absolute()
 
 
 def test_environment_key_is_stable_readable_and_distinct(monkeypatch):
-    key = envs.environment_key("mujoco==3.1.6")
-    assert key.startswith("mujoco-3.1.6-") and envs._KEY_RE.match(key)
-    assert envs.environment_key("MuJoCo == 3.1.6") == key == envs.environment_key(" mujoco==3.1.6 ")
-    assert envs.environment_key("mujoco>=3,<4") == envs.environment_key("mujoco<4 , >=3")
-    others = {envs.environment_key(r) for r in ("mujoco==3.1.5", "mujoco>=3.1.6", "mujoco[usd]==3.1.6",
+    key = cache.environment_key("mujoco==3.1.6")
+    assert key.startswith("mujoco-3.1.6-") and cache.KEY_RE.match(key)
+    assert cache.environment_key("MuJoCo == 3.1.6") == key == cache.environment_key(" mujoco==3.1.6 ")
+    assert cache.environment_key("mujoco>=3,<4") == cache.environment_key("mujoco<4 , >=3")
+    others = {cache.environment_key(r) for r in ("mujoco==3.1.5", "mujoco>=3.1.6", "mujoco[usd]==3.1.6",
                                                  "mujoco-mjx==3.1.6", "mujoco")}
     assert len(others) == 5 and key not in others
     monkeypatch.setattr(freebody, "__version__", "99.0")
-    assert envs.environment_key("mujoco==3.1.6") != key
+    assert cache.environment_key("mujoco==3.1.6") != key
     monkeypatch.undo()
-    monkeypatch.setattr(envs.platform, "machine", lambda: "riscv64")
-    assert envs.environment_key("mujoco==3.1.6") != key
+    monkeypatch.setattr(cache.platform, "machine", lambda: "riscv64")
+    assert cache.environment_key("mujoco==3.1.6") != key
 
 
 VALID = {"mujoco==3.1.6": "mujoco==3.1.6", "MuJoCo == 3.1.6": "mujoco==3.1.6",
@@ -90,7 +91,7 @@ INVALID = ["", "  ", "--index-url=https://evil.example", "-e .", "mujoco==3.1.6 
 def test_requirements_are_normalised(text, packaging, monkeypatch):
     if not packaging:
         monkeypatch.setitem(sys.modules, "packaging.requirements", None)  # import fails
-    assert envs.normalise_requirement(text) == VALID[text]
+    assert requirements.normalise_requirement(text) == VALID[text]
 
 
 @pytest.mark.parametrize("text", INVALID)
@@ -98,8 +99,8 @@ def test_requirements_are_normalised(text, packaging, monkeypatch):
 def test_invalid_requirement_is_one_line_input_error(text, packaging, monkeypatch, root):
     if not packaging:
         monkeypatch.setitem(sys.modules, "packaging.requirements", None)
-    for call in (envs.normalise_requirement, envs.environment_key, envs.ensure_environment,
-                 lambda r: envs.clear_environments([r])):
+    for call in (requirements.normalise_requirement, cache.environment_key, build.ensure_environment,
+                 lambda r: cache.clear_environments([r])):
         with pytest.raises(InputError) as e:
             call(text)
         message = str(e.value)
@@ -114,7 +115,7 @@ def test_list_and_clear_a_fake_tree(root):
     old = fake_environment(root, "mujoco==3.1.6", key="mujoco-3.1.6-0123456789ab", freebody_version="0.1.0")
     b = fake_environment(root, "pybullet==3.2.5", installed={"pybullet": "3.2.5"})
     incomplete = fake_environment(root, "dartpy==0.2", complete=False)
-    leftover = root / f".tmp-{envs.environment_key('dartpy==0.2')}-abcd1234"
+    leftover = root / f".tmp-{cache.environment_key('dartpy==0.2')}-abcd1234"
     leftover.mkdir()
     unrelated = root / "my-notes"  # not an environment: never touched
     unrelated.mkdir()
@@ -122,7 +123,7 @@ def test_list_and_clear_a_fake_tree(root):
     (root / "logs").mkdir()
     (root / "logs" / f"{a.name}.log").write_text("log")
 
-    listed = envs.list_environments()
+    listed = cache.list_environments()
     assert [(e["requirement"], e["path"]) for e in listed] == sorted(
         [("mujoco==3.1.6", str(a)), ("mujoco==3.1.6", str(old)), ("pybullet==3.2.5", str(b))])
     first = next(e for e in listed if e["path"] == str(a))
@@ -131,21 +132,21 @@ def test_list_and_clear_a_fake_tree(root):
     assert first["installed"] == {"mujoco": "3.1.6", "numpy": "2.0.0"} and first["size_bytes"] > 0
 
     # by requirement: every environment of it (also an older freebody's), in any spelling
-    assert sorted(envs.clear_environments(["MuJoCo == 3.1.6"])) == sorted([a, old])
+    assert sorted(cache.clear_environments(["MuJoCo == 3.1.6"])) == sorted([a, old])
     assert not a.exists() and not old.exists() and b.exists()
     assert not (root / "logs" / f"{a.name}.log").exists()
-    assert envs.clear_environments(["mujoco==3.1.6"]) == []
+    assert cache.clear_environments(["mujoco==3.1.6"]) == []
     # an incomplete environment is found by its key
-    assert envs.clear_environments(["dartpy==0.2"]) == [incomplete]
+    assert cache.clear_environments(["dartpy==0.2"]) == [incomplete]
     # everything: the rest and the leftovers of interrupted builds, nothing else
-    assert sorted(envs.clear_environments()) == sorted([b, leftover])
-    assert envs.list_environments() == [] and (unrelated / "keep.txt").read_text() == "mine"
-    assert envs.clear_environments() == []
+    assert sorted(cache.clear_environments()) == sorted([b, leftover])
+    assert cache.list_environments() == [] and (unrelated / "keep.txt").read_text() == "mine"
+    assert cache.clear_environments() == []
 
 
 def test_list_and_clear_without_a_root(root):
-    assert envs.list_environments() == [] and envs.clear_environments() == []
-    assert envs.clear_environments(["mujoco==3.1.6"]) == [] and not root.exists()
+    assert cache.list_environments() == [] and cache.clear_environments() == []
+    assert cache.clear_environments(["mujoco==3.1.6"]) == [] and not root.exists()
 
 
 def test_cli_envs(root, capsys):
@@ -189,30 +190,30 @@ def test_cli_envs_bad_input_is_one_line(argv, expected, root, capsys):
 # --- reuse, rebuild, re-copy ---------------------------------------------------------------------------
 
 def test_complete_environment_is_reused_and_touched(root, monkeypatch):
-    monkeypatch.setattr(envs, "_build", lambda *a, **k: pytest.fail("rebuilt a complete environment"))
-    folder = fake_environment(root, "mujoco==3.1.6", source_digest=envs.source_digest())
-    env = envs.ensure_environment("MuJoCo==3.1.6")
-    assert env == envs.EngineEnvironment("mujoco==3.1.6", folder, folder / "bin" / "python")
-    marker = json.loads((folder / envs.MARKER).read_text())
+    monkeypatch.setattr(build, "_build", lambda *a, **k: pytest.fail("rebuilt a complete environment"))
+    folder = fake_environment(root, "mujoco==3.1.6", source_digest=build.source_digest())
+    env = build.ensure_environment("MuJoCo==3.1.6")
+    assert env == cache.EngineEnvironment("mujoco==3.1.6", folder, folder / "bin" / "python")
+    marker = json.loads((folder / cache.MARKER).read_text())
     assert marker["last_used"] > "2026-01-02T03:04:05+00:00"
 
 
 def test_changed_source_is_copied_again(root, monkeypatch):
-    monkeypatch.setattr(envs, "_build", lambda *a, **k: pytest.fail("rebuilt instead of copying"))
+    monkeypatch.setattr(build, "_build", lambda *a, **k: pytest.fail("rebuilt instead of copying"))
     folder = fake_environment(root, "mujoco==3.1.6", source_digest="stale")
     lines = []
-    envs.ensure_environment("mujoco==3.1.6", progress=lines.append)
+    build.ensure_environment("mujoco==3.1.6", progress=lines.append)
     assert lines == ["copying freebody's changed source into the environment for mujoco==3.1.6"]
-    site = envs._site_packages(folder)
+    site = cache.site_packages(folder)
     assert (site / "freebody" / "adapters" / "base.py").read_bytes() == \
-        Path(envs.source_files()["freebody/adapters/base.py"]).read_bytes()
-    assert json.loads((folder / envs.MARKER).read_text())["source_digest"] == envs.source_digest()
+        Path(build.source_files()["freebody/adapters/base.py"]).read_bytes()
+    assert json.loads((folder / cache.MARKER).read_text())["source_digest"] == build.source_digest()
 
 
 @pytest.mark.parametrize("damage", ["no marker", "other core versions", "interpreter gone", "other requirement"])
 def test_incomplete_or_outdated_environment_is_rebuilt(damage, root, monkeypatch):
     built = []
-    monkeypatch.setattr(envs, "_build", lambda req, env, *a: built.append(env.requirement))
+    monkeypatch.setattr(build, "_build", lambda req, env, *a: built.append(env.requirement))
     requirement = "mujoco==3.1.6"
     if damage == "no marker":
         fake_environment(root, requirement, complete=False)
@@ -222,13 +223,13 @@ def test_incomplete_or_outdated_environment_is_rebuilt(damage, root, monkeypatch
         folder = fake_environment(root, requirement)
         (folder / "bin" / "python").unlink()
     else:
-        fake_environment(root, "mujoco==3.1.5", key=envs.environment_key(requirement))
-    envs.ensure_environment(requirement)
+        fake_environment(root, "mujoco==3.1.5", key=cache.environment_key(requirement))
+    build.ensure_environment(requirement)
     assert built == [requirement]
 
 
 class FakeInstaller:
-    """Stands in for the venv, pip and uv commands of a build (:func:`envs._run_logged`): records
+    """Stands in for the venv, pip and uv commands of a build (:func:`build._run_logged`): records
     each command and answers with the given install results, in order."""
 
     def __init__(self, installs):
@@ -245,62 +246,62 @@ class FakeInstaller:
             return 0, ""
         if "install" in cmd:
             return self.installs.pop(0)
-        if envs._INSTALLED_SCRIPT in cmd:
-            return 0, json.dumps([{"mujoco": "3.1.6", "numpy": "2.0.0"}, envs.core_versions()])
+        if build._INSTALLED_SCRIPT in cmd:
+            return 0, json.dumps([{"mujoco": "3.1.6", "numpy": "2.0.0"}, build.core_versions()])
         return 0, ""  # the import check
 
 
 @pytest.mark.parametrize("uv", [None, "/opt/uv"], ids=["pip", "uv"])
 def test_build_commands(uv, root, monkeypatch):
     fake = FakeInstaller([(0, "")])
-    monkeypatch.setattr(envs, "_run_logged", fake)
-    monkeypatch.setattr(envs, "find_uv", lambda: uv)
+    monkeypatch.setattr(build, "_run_logged", fake)
+    monkeypatch.setattr(build, "find_uv", lambda: uv)
     lines = []
-    env = envs.ensure_environment("mujoco==3.1.6", progress=lines.append)
+    env = build.ensure_environment("mujoco==3.1.6", progress=lines.append)
     venv, install, check, installed = fake.commands
     tmp = Path(venv[-1])
     assert tmp.parent == root and tmp.name.startswith(f".tmp-{env.path.name}-") and not tmp.exists()
     assert venv == ([uv, "venv", "--python", sys.executable, str(tmp)] if uv
                     else [sys.executable, "-m", "venv", str(tmp)])
-    pins = [f"{n}=={v}" for n, v in envs.core_versions().items()]
+    pins = [f"{n}=={v}" for n, v in build.core_versions().items()]
     assert install == ([uv, "pip", "install", "--python", str(tmp / "bin" / "python")] if uv else
                        [str(tmp / "bin" / "python"), "-m", "pip", "install", "--disable-pip-version-check",
                         "--no-input"]) + ["mujoco==3.1.6", *pins]
-    assert check == [str(tmp / "bin" / "python"), "-P", "-c", envs.IMPORT_CHECK]
+    assert check == [str(tmp / "bin" / "python"), "-P", "-c", build.IMPORT_CHECK]
     assert lines[:4] == [f"creating environment for mujoco==3.1.6 in {env.path} (first use; this takes a minute)",
                          "copying freebody", f"installing mujoco==3.1.6 {' '.join(pins)}", "checking"]
     assert lines[4].startswith("ready in ")
-    marker = json.loads((env.path / envs.MARKER).read_text())
+    marker = json.loads((env.path / cache.MARKER).read_text())
     assert marker["pins"] is True and marker["installer"] == ("uv" if uv else "pip")
     assert marker["installed"] == {"mujoco": "3.1.6", "numpy": "2.0.0"}
-    assert marker["source_digest"] == envs.source_digest() and marker["requirement"] == "mujoco==3.1.6"
-    site = envs._site_packages(env.path)
+    assert marker["source_digest"] == build.source_digest() and marker["requirement"] == "mujoco==3.1.6"
+    site = cache.site_packages(env.path)
     assert (site / "freebody" / "run" / "worker.py").is_file()
     assert (site / f"freebody-{freebody.__version__}.dist-info" / "METADATA").read_text().startswith(
         "Metadata-Version: 2.1\nName: freebody\n")
-    assert [e["requirement"] for e in envs.list_environments()] == ["mujoco==3.1.6"]
+    assert [e["requirement"] for e in cache.list_environments()] == ["mujoco==3.1.6"]
 
 
 def test_build_retries_without_pins_after_a_conflict(root, monkeypatch):
     fake = FakeInstaller([(1, PIP_CONFLICT), (0, "")])
-    monkeypatch.setattr(envs, "_run_logged", fake)
-    monkeypatch.setattr(envs, "find_uv", lambda: None)
+    monkeypatch.setattr(build, "_run_logged", fake)
+    monkeypatch.setattr(build, "find_uv", lambda: None)
     lines = []
-    env = envs.ensure_environment("mujoco==3.1.6", progress=lines.append)
+    env = build.ensure_environment("mujoco==3.1.6", progress=lines.append)
     first, second = [c for c in fake.commands if "install" in c]
-    assert second[second.index("mujoco==3.1.6"):] == ["mujoco==3.1.6", *envs.core_requirements()]
+    assert second[second.index("mujoco==3.1.6"):] == ["mujoco==3.1.6", *build.core_requirements()]
     assert any("retrying without the pins" in ln for ln in lines)
-    assert json.loads((env.path / envs.MARKER).read_text())["pins"] is False
+    assert json.loads((env.path / cache.MARKER).read_text())["pins"] is False
 
 
 def test_build_failure_is_one_line_and_leaves_nothing(root, monkeypatch):
     fake = FakeInstaller([(1, PIP_NOT_FOUND)])
-    monkeypatch.setattr(envs, "_run_logged", fake)
-    monkeypatch.setattr(envs, "find_uv", lambda: None)
+    monkeypatch.setattr(build, "_run_logged", fake)
+    monkeypatch.setattr(build, "find_uv", lambda: None)
     requirement = "freebody-no-such-engine==0.0.1"
-    with pytest.raises(envs.EnvironmentFailed) as e:
-        envs.ensure_environment(requirement)
-    log = root / "logs" / f"{envs.environment_key(requirement)}.log"
+    with pytest.raises(build.EnvironmentFailed) as e:
+        build.ensure_environment(requirement)
+    log = root / "logs" / f"{cache.environment_key(requirement)}.log"
     assert str(e.value) == (f"cannot create the environment for {requirement}: No matching distribution "
                             f"found for {requirement} (install log: {log})")
     assert len([c for c in fake.commands if "install" in c]) == 1  # no retry: the engine does not exist
@@ -310,8 +311,8 @@ def test_build_failure_is_one_line_and_leaves_nothing(root, monkeypatch):
 # --- freebody's source -------------------------------------------------------------------------------
 
 def test_source_files_cover_the_packages():
-    files = envs.source_files()
-    for rel in ("freebody/__init__.py", "freebody/run/worker.py", "freebody/environments.py",
+    files = build.source_files()
+    for rel in ("freebody/__init__.py", "freebody/run/worker.py", "freebody/envs/build.py",
                 "freebody/adapters/base.py", "freebody/reference_impl/__init__.py",
                 "freebody/cases/dzhanibekov.toml", "freebody/cases/meshes/t_handle.obj"):
         assert rel in files, rel
@@ -321,10 +322,10 @@ def test_source_files_cover_the_packages():
 
 def test_copied_source_is_importable(tmp_path):
     site = tmp_path / "site"
-    digest = envs.copy_source(site)
-    assert digest == envs.source_digest()
+    digest = build.copy_source(site)
+    assert digest == build.source_digest()
     assert not list(site.rglob("__pycache__")) and not list(site.rglob("*.nb[ic]"))
-    script = ("import freebody, freebody.adapters.base, freebody.run.worker, freebody.environments\n"
+    script = ("import freebody, freebody.adapters.base, freebody.run.worker, freebody.envs.build\n"
               "from freebody.input.casefile import bundled_case_paths\n"
               "from freebody.input import load_case\n"
               "load_case('dzhanibekov')\n"
@@ -340,24 +341,24 @@ def test_copied_source_is_importable(tmp_path):
 
 
 def test_digest_follows_the_source(tmp_path):
-    files = envs.source_files()
-    assert envs.source_digest(files) == envs.source_digest(dict(reversed(list(files.items()))))
+    files = build.source_files()
+    assert build.source_digest(files) == build.source_digest(dict(reversed(list(files.items()))))
     edited = tmp_path / "base.py"
     edited.write_bytes(files["freebody/adapters/base.py"].read_bytes() + b"\n# edited\n")
     changed = {**files, "freebody/adapters/base.py": edited}
-    assert envs.source_digest(changed) != envs.source_digest(files)
+    assert build.source_digest(changed) != build.source_digest(files)
     renamed = {("freebody/adapters/renamed.py" if k == "freebody/adapters/base.py" else k): v
                for k, v in files.items()}
-    assert envs.source_digest(renamed) != envs.source_digest(files)
+    assert build.source_digest(renamed) != build.source_digest(files)
 
     # copied again: the edited file replaced, a file gone from the source gone, caches kept
     site = tmp_path / "site"
-    envs.copy_source(site, files)
+    build.copy_source(site, files)
     cache = site / "freebody" / "adapters" / "__pycache__"
     cache.mkdir()
     (cache / "base.cpython-311.pyc").write_bytes(b"cached")
     fewer = {k: v for k, v in changed.items() if k != "freebody/adapters/loads.py"}
-    assert envs.copy_source(site, fewer) == envs.source_digest(fewer)
+    assert build.copy_source(site, fewer) == build.source_digest(fewer)
     assert (site / "freebody" / "adapters" / "base.py").read_bytes().endswith(b"# edited\n")
     assert not (site / "freebody" / "adapters" / "loads.py").exists()
     assert (cache / "base.cpython-311.pyc").read_bytes() == b"cached"
@@ -388,22 +389,22 @@ UV_NOT_FOUND = """\
 
 
 def test_key_error_lines():
-    assert envs.key_error(PIP_NOT_FOUND) == "No matching distribution found for freebody-no-such-engine==0.0.1"
-    assert envs.key_error(PIP_CONFLICT).startswith("Cannot install numpy==2.4.6 and scipy==1.11.4")
-    assert envs.key_error(UV_NOT_FOUND) == ("Because there is no version of mujoco==9.9 and you require "
+    assert build.key_error(PIP_NOT_FOUND) == "No matching distribution found for freebody-no-such-engine==0.0.1"
+    assert build.key_error(PIP_CONFLICT).startswith("Cannot install numpy==2.4.6 and scipy==1.11.4")
+    assert build.key_error(UV_NOT_FOUND) == ("Because there is no version of mujoco==9.9 and you require "
                                             "mujoco==9.9, we can conclude that your requirements are "
                                             "unsatisfiable.")
-    assert envs.key_error("error: uv could not do it\n") == "error: uv could not do it"
-    assert envs.key_error("") == "no output"
+    assert build.key_error("error: uv could not do it\n") == "error: uv could not do it"
+    assert build.key_error("") == "no output"
     # retrying without the pins helps a conflict, not a distribution that does not exist
-    assert envs._not_found(envs.key_error(PIP_NOT_FOUND), "freebody-no-such-engine")
-    assert envs._not_found(envs.key_error(UV_NOT_FOUND), "mujoco")
-    assert not envs._not_found(envs.key_error(PIP_CONFLICT), "scipy")
-    assert not envs._not_found("No matching distribution found for numpy==2.4.6", "mujoco")
+    assert build._not_found(build.key_error(PIP_NOT_FOUND), "freebody-no-such-engine")
+    assert build._not_found(build.key_error(UV_NOT_FOUND), "mujoco")
+    assert not build._not_found(build.key_error(PIP_CONFLICT), "scipy")
+    assert not build._not_found("No matching distribution found for numpy==2.4.6", "mujoco")
 
 
 def test_environment_failed_is_one_line(tmp_path):
-    e = envs.EnvironmentFailed("mujoco==9.9", "No matching distribution\nfound", tmp_path / "x.log")
+    e = build.EnvironmentFailed("mujoco==9.9", "No matching distribution\nfound", tmp_path / "x.log")
     assert "\n" not in str(e) and str(e).startswith("cannot create the environment for mujoco==9.9: ")
     assert str(e).endswith(f"(install log: {tmp_path / 'x.log'})")
 
@@ -411,22 +412,22 @@ def test_environment_failed_is_one_line(tmp_path):
 # --- describing an engine ------------------------------------------------------------------------------
 
 def test_describe_entry_point(capsys):
-    assert envs.main(["describe", "reference"]) == 0
+    assert describe.main(["describe", "reference"]) == 0
     out = capsys.readouterr().out
-    assert out.startswith(envs.DESCRIBE_PREFIX) and out.count("\n") == 1
-    data = json.loads(out[len(envs.DESCRIBE_PREFIX):])
+    assert out.startswith(describe.DESCRIBE_PREFIX) and out.count("\n") == 1
+    data = json.loads(out[len(describe.DESCRIBE_PREFIX):])
     assert data["available"] and data["version"] == freebody.__version__ and data["error"] is None
     assert "rk4" in data["integrators"] and data["precisions"] == ["float64"]
-    assert envs.main(["describe"]) == 2
+    assert describe.main(["describe"]) == 2
 
 
 def test_describe_engine_in_a_subprocess(tmp_path):
-    env = envs.EngineEnvironment("reference", tmp_path, Path(sys.executable))  # this interpreter
-    data = envs.describe_engine(env, "reference")
+    env = cache.EngineEnvironment("reference", tmp_path, Path(sys.executable))  # this interpreter
+    data = describe.describe_engine(env, "reference")
     assert data["available"] and data["engine"] == "reference" and data["integrators"]
-    unknown = envs.describe_engine(env, "no-such-engine")
+    unknown = describe.describe_engine(env, "no-such-engine")
     assert not unknown["available"] and "unknown engine 'no-such-engine'" in unknown["error"]
-    broken = envs.describe_engine(envs.EngineEnvironment("x", tmp_path, tmp_path / "no-python"), "mujoco")
+    broken = describe.describe_engine(cache.EngineEnvironment("x", tmp_path, tmp_path / "no-python"), "mujoco")
     assert not broken["available"] and "cannot run" in broken["error"]
 
 
@@ -435,10 +436,10 @@ def test_describe_engine_in_a_subprocess(tmp_path):
 @pytest.mark.slow
 def test_requirement_that_cannot_be_installed(root):
     requirement = "freebody-no-such-engine==0.0.1"
-    with pytest.raises(envs.EnvironmentFailed) as e:
-        envs.ensure_environment(requirement)
+    with pytest.raises(build.EnvironmentFailed) as e:
+        build.ensure_environment(requirement)
     message = str(e.value)
-    log = root / "logs" / f"{envs.environment_key(requirement)}.log"
+    log = root / "logs" / f"{cache.environment_key(requirement)}.log"
     assert "\n" not in message
     assert message == (f"cannot create the environment for {requirement}: No matching distribution found "
                        f"for {requirement} (install log: {log})")
@@ -450,27 +451,27 @@ def test_requirement_that_cannot_be_installed(root):
 def test_real_environment_built_reused_described_cleared(root):
     lines = []
     t0 = time.perf_counter()
-    env = envs.ensure_environment("mujoco==3.1.6", progress=lines.append)
+    env = build.ensure_environment("mujoco==3.1.6", progress=lines.append)
     first = time.perf_counter() - t0
-    assert env.python.exists() and env.path.parent == root and (env.path / envs.MARKER).is_file()
+    assert env.python.exists() and env.path.parent == root and (env.path / cache.MARKER).is_file()
     assert lines[0] == (f"creating environment for mujoco==3.1.6 in {env.path} (first use; this takes "
                         "a minute)")
     assert any(ln.startswith("installing mujoco==3.1.6 numpy==") for ln in lines)
     assert lines[-1].startswith("ready in ") and "checking" in lines
 
     t0 = time.perf_counter()
-    again = envs.ensure_environment("mujoco==3.1.6", progress=lines.append)
+    again = build.ensure_environment("mujoco==3.1.6", progress=lines.append)
     second = time.perf_counter() - t0
     assert again == env and second < 1.0 and second < first / 10
-    print(f"\nfirst build {first:.1f} s ({json.loads((env.path / envs.MARKER).read_text())['installer']}), "
+    print(f"\nfirst build {first:.1f} s ({json.loads((env.path / cache.MARKER).read_text())['installer']}), "
           f"cached {second * 1000:.0f} ms")
 
-    data = envs.describe_engine(env, "mujoco")
+    data = describe.describe_engine(env, "mujoco")
     assert data["available"] and data["version"] == "3.1.6" and data["error"] is None
     assert "RK4" in data["integrators"] and "Euler" in data["integrators"]
-    versioned = envs.describe_engine(env, "mujoco==3.1.6")
+    versioned = describe.describe_engine(env, "mujoco==3.1.6")
     assert versioned["available"] and versioned["version"] == "3.1.6"
-    listed = envs.list_environments()
+    listed = cache.list_environments()
     assert [(e["requirement"], e["installed"]["mujoco"]) for e in listed] == [("mujoco==3.1.6", "3.1.6")]
-    assert listed[0]["pins"] is True and listed[0]["core_installed"] == envs.core_versions()
-    assert envs.clear_environments(["mujoco==3.1.6"]) == [env.path] and not env.path.exists()
+    assert listed[0]["pins"] is True and listed[0]["core_installed"] == build.core_versions()
+    assert cache.clear_environments(["mujoco==3.1.6"]) == [env.path] and not env.path.exists()

@@ -17,6 +17,7 @@ from freebody.reference_impl.rotations import quat_from_rotvec
 from freebody.report import data as rd
 from freebody.report import findings as fd
 from freebody.report.render import write_reports
+from freebody.results.judgement import with_judgement
 
 LEVEL = 1e-12  # the round-off level the hand-made identifications report (rad)
 MAPS = ("semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro", "rk4", "implicit-gyro-split-torque")
@@ -45,7 +46,8 @@ def run(engine: str, integrator: str, case: str = "c", dt: float = 0.01, error: 
         reproduces: str | None = "semi-implicit-explicit-gyro", status: str = "ok", angle: float = 0.5,
         **extra) -> dict:
     """An engine run (ok by default): orientation error max ``error``, final orientation ``angle``
-    about z, reproducing ``reproduces``."""
+    about z, reproducing ``reproduces``; with its ``judgement`` as the run layer stores it (a test
+    that changes a field afterwards judges the run again: :func:`with_judgement`)."""
     r = {"case": case, "engine": engine, "integrator": integrator, "precision": "float64", "dt": dt,
          "steps": 100, "status": status, "message": "", "engine_version": "1.0",
          "metrics": {"orientation_error_max_rad": error}, "trajectory": None, "diverged_at_s": None,
@@ -53,7 +55,7 @@ def run(engine: str, integrator: str, case: str = "c", dt: float = 0.01, error: 
                          "linear_velocity": [0.0, 0.0, 0.0], "position": [0.0, 0.0, 0.0], "t": 1.0},
          "matches_reference": None if engine == "reference" else match(reproduces)}
     r.update(extra)
-    return r
+    return with_judgement(r)
 
 
 def kinds(found) -> list[tuple[str, str, str]]:
@@ -121,7 +123,8 @@ def test_a_run_that_reproduces_another_map_on_one_case_is_a_scheme_switch():
     assert kinds(found) == [("scheme-switch", "a/x", "c4")]
     assert "3 of its 4 runs reproduce semi-implicit-explicit-gyro" in found[0].text
     # a tie that holds the usual map is no switch
-    runs[-1]["matches_reference"] = match("implicit-gyro-split-torque", tie=("semi-implicit-explicit-gyro",))
+    runs[-1] = with_judgement({**runs[-1], "matches_reference": match("implicit-gyro-split-torque",
+                                                                      tie=("semi-implicit-explicit-gyro",))})
     assert fd.find(runs) == []
 
 
@@ -341,12 +344,13 @@ def test_pybullet_multibody_on_high_spin_names_the_pi_4_cap():
     cap = [f for f in found if f.kind == "rotation-cap"]
     assert len(cap) == 1 and "the pi/4 rotation cap per step" in cap[0].text
     # an outlier of the same run says the cause is the cap (and not the reproduced map's summary)
-    peer = {**copy.deepcopy(r), "engine": "other", "metrics": {"orientation_error_max_rad": 1e-6},
-            "state_growth": None}
+    peer = with_judgement({**copy.deepcopy(r), "engine": "other", "metrics": {"orientation_error_max_rad": 1e-6},
+                           "state_growth": None})
     out = [f for f in fd.find([r, peer]) if f.label == "pybullet/multibody"]
     assert [f.kind for f in out] == ["outlier"] and "cause: the pi/4 rotation cap per step" in out[0].text
     # a run of an engine that declares no cap gets no cap finding, whatever its |w| dt
-    other = {**copy.deepcopy(r), "state_growth": {**g, "step_rotation_cap_rad": None, "rotation_cap_t_s": None}}
+    other = with_judgement({**copy.deepcopy(r), "state_growth": {**g, "step_rotation_cap_rad": None,
+                                                                 "rotation_cap_t_s": None}})
     assert not [f for f in fd.find([other]) if f.kind == "rotation-cap"]
 
 
@@ -367,10 +371,8 @@ def test_growth_is_the_same_judged_whole_or_in_chunks():
 
 
 def test_a_saturated_run_is_said_lost_not_closest():
-    lost = run("e", "x", reproduces=None, error=3.1)
-    lost["matches_reference"] = match(None, closest="rk4", distance=3.1)
-    near = run("f", "y", reproduces=None)
-    near["matches_reference"] = match(None, closest="rk4", distance=1e-6)
+    lost = run("e", "x", reproduces=None, error=3.1, matches_reference=match(None, closest="rk4", distance=3.1))
+    near = run("f", "y", reproduces=None, matches_reference=match(None, closest="rk4", distance=1e-6))
     by = {f.label: f for f in fd.find([lost, near]) if f.kind == "no-map"}
     assert "closest" not in by["e/x"].text and "orientation is lost" in by["e/x"].text
     assert "closest rk4" in by["f/y"].text

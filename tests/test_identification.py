@@ -337,9 +337,9 @@ def test_a_float32_level_keeps_the_loads_on_their_steps():
 
 
 def _identification(names_q: dict, spreads: dict, q_run: np.ndarray, precision="float64") -> dict:
-    """_Identification of the run q_run (N, 4) against the maps names_q (name -> q (N, 4)) with
+    """Identification of the run q_run (N, 4) against the maps names_q (name -> q (N, 4)) with
     the given spreads (name -> (N,)); every other candidate map is a rotation 1 rad away."""
-    from freebody.run.judge import _Identification
+    from freebody.run.judge import Identification
 
     far = np.array([[np.cos(0.5), np.sin(0.5), 0.0, 0.0]])
     pb = load_case("spinning_sphere")
@@ -350,7 +350,7 @@ def _identification(names_q: dict, spreads: dict, q_run: np.ndarray, precision="
             yield names_q[name], spreads[name]
         else:
             yield _qmul(far, q_run), np.full(len(q_run), 1e-12)
-    ident = _Identification(spec, pieces)
+    ident = Identification(spec, pieces)
     ident.update(q_run)
     return ident.result()
 
@@ -507,7 +507,7 @@ def test_sapien_pgs_on_gazebo_boxes_is_not_claimed_by_the_map_without_gyroscopic
 def test_a_float32_identification_in_chunks_is_the_whole_one():
     """The float32 drift floor runs on across chunks (the angle turned so far, the step count): a run
     judged in three chunks gets the whole run's verdict and levels."""
-    from freebody.run.judge import _Identification
+    from freebody.run.judge import Identification
 
     pb, dt = load_case("offset_push"), 0.001
     n = pb.steps(dt)
@@ -520,7 +520,7 @@ def test_a_float32_identification_in_chunks_is_the_whole_one():
         q, s = cache.orientation(pb, name, dt, n), cache.roundoff(pb, name, dt, n, "float32")
         for a, b in bounds:
             yield q[a:b], s[a:b]
-    ident = _Identification(RunSpec(pb, "engine", "pgs", dt, n, "float32"), pieces)
+    ident = Identification(RunSpec(pb, "engine", "pgs", dt, n, "float32"), pieces)
     for a, b in bounds:
         ident.update(tr.quaternion_wxyz[a:b])
     chunked = ident.result()
@@ -537,13 +537,14 @@ def test_a_run_whose_usual_map_is_undecidable_here_is_no_scheme_switch():
     """high_spin_dt_10ms: the engines' explicit map is undecidable there (its perturbed copies blow
     up), so the tie holds other maps only; that is no switch of scheme."""
     from freebody.report.findings import switch_findings
+    from freebody.results.judgement import with_judgement
 
     def run(case, tie, undecidable=()):
         m = {"verdict": "reproduces" if len(tie) == 1 else "indistinguishable", "integrator": tie[0],
              "closest": tie[0], "indistinguishable": list(tie), "undecidable": list(undecidable),
              "candidates": {t: 0.0 for t in tie}, "levels_rad": {t: 1e-12 for t in tie}, "ratios": {}}
-        return {"case": case, "engine": "e", "integrator": "Euler", "dt": 0.01, "status": "ok",
-                "metrics": {}, "matches_reference": m}
+        return with_judgement({"case": case, "engine": "e", "integrator": "Euler", "dt": 0.01, "status": "ok",
+                               "metrics": {}, "matches_reference": m})
     usual = [run(f"c{i}", ["semi-implicit-explicit-gyro"]) for i in range(3)]
     other = ["semi-implicit-implicit-gyro", "rkmk4-body"]
     assert len(switch_findings(usual + [run("high", other)])) == 1

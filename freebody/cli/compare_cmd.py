@@ -1,7 +1,7 @@
 """``freebody compare BASELINE CURRENT``: what changed between two sets of results; exit 1 on a regression.
 
 ``freebody compare RESULTS --engine mujoco==3.1.6 --against mujoco==4.0.0``: the same verdicts
-between two engines (two versions of one) of one results file (:mod:`freebody.results.versions`)."""
+between two engines (two versions of one) of one results file (:mod:`freebody.envs.versions`)."""
 from __future__ import annotations
 
 from .argtypes import nonnegative_float as _tolerance
@@ -46,7 +46,7 @@ def run(args) -> int:
 
     tols = resolve_tolerances(args.tolerances, args.rtol, args.atol)
     if args.against is not None:
-        from ..results.versions import split_sides
+        from ..envs.versions import split_sides
 
         if args.current is not None:
             raise InputError("--against: compares two engines of one results file; give RESULTS only "

@@ -13,7 +13,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from ..adapters.base import EngineMissing, load_adapter
     from ..run import select_engines
-    from ..run.engine_envs import isolated
+    from ..envs.engines import isolated
     from ..run.selfcheck import CHECKS, run_check, run_trap_checks
 
     failed = False
@@ -64,8 +64,8 @@ def _in_environment(engine: str, no_checks: bool) -> int:
     import sys
 
     from ..adapters.base import base_engine
-    from ..environments import clean_environ
-    from ..run.engine_envs import environment
+    from ..envs.build import clean_environ
+    from ..envs.engines import environment
 
     env = environment(engine)
     sys.stdout.flush()

@@ -24,7 +24,9 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..environments import EnvironmentFailed, ensure_environment, env_root, normalise_requirement
+    from ..envs.build import EnvironmentFailed, ensure_environment
+    from ..envs.cache import env_root
+    from ..envs.requirements import normalise_requirement
     from ..errors import InputError
 
     if args.action in ("list", "path") and args.requirements:
@@ -57,8 +59,9 @@ def _progress(line: str) -> None:
 
 
 def _list() -> int:
-    """The table of :func:`~freebody.environments.list_environments`."""
-    from ..environments import canonical_name, env_root, list_environments, requirement_name
+    """The table of :func:`~freebody.envs.cache.list_environments`."""
+    from ..envs.cache import env_root, list_environments
+    from ..envs.requirements import canonical_name, requirement_name
     from ..errors import InputError, printable
 
     envs = list_environments()
@@ -95,7 +98,7 @@ def _local_time(stamp) -> str:
 
 def _clear(requirements: list[str]) -> int:
     """Remove the named environments (all when none is named) and say what was removed."""
-    from ..environments import clear_environments, env_root
+    from ..envs.cache import clear_environments, env_root
 
     if not requirements:
         removed = clear_environments()

@@ -1,18 +1,10 @@
-"""Isolated Python environments for engines named with a version (``--engine mujoco==3.1.6``).
+"""Building an engine's environment (``--engine mujoco==3.1.6``), or reusing the cached one.
 
 One environment per engine requirement: a virtual environment that holds the requested engine,
 freebody's core dependencies pinned to the versions of this process (so that the truths and the
 reference maps computed there are the same numbers as here) and a copy of freebody's own source.
 Worker processes then run ``ENV/bin/python -m freebody.run.worker`` in it (``freebody.run``).
-
-Layout of :func:`env_root` (``$FREEBODY_ENV_DIR``, else ``$XDG_CACHE_HOME/freebody/envs``, else
-``~/.cache/freebody/envs``)::
-
-    <key>/                  one environment (:func:`environment_key`: slug of the requirement + hash)
-    <key>/freebody-env.json the marker, written last: a folder without it is incomplete (rebuilt)
-    .tmp-<key>-XXXX/        an environment being built, renamed to <key>/ when complete (atomic)
-    locks/<key>.lock        fcntl lock: one process builds an environment, the others wait for it
-    logs/<key>.log          the full output of the last build's venv, pip or uv commands
+Where environments live, their markers and locks: :mod:`freebody.envs.cache`.
 
 Design decisions:
 
@@ -35,10 +27,6 @@ Design decisions:
 - Failures the user sees are one line: bad requirement text is an
   :class:`~freebody.errors.InputError`, a failed build an :class:`EnvironmentFailed` naming the
   requirement, pip's or uv's key error line and the install log.
-
-``python -m freebody.environments describe ENGINE`` (run by :func:`describe_engine` with the
-environment's interpreter) prints the engine's availability, version, integrators and precisions as
-one JSON line.
 """
 from __future__ import annotations
 
@@ -55,31 +43,20 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
-from datetime import datetime, timezone
 from pathlib import Path, PurePosixPath
-from typing import Callable, Iterator
+from typing import Callable
 
-from .errors import InputError, printable
+from ..errors import printable
+from .cache import (TMP_PREFIX, EngineEnvironment, env_root, environment_key, freebody_version, locked, now,
+                    read_marker, site_packages, write_marker)
+from .requirements import NAME_PATTERN, ParsedRequirement, canonical_name, declared_name, parse_requirement
 
-ENV_DIR_VARIABLE = "FREEBODY_ENV_DIR"
-MARKER = "freebody-env.json"
 # The package trees copied into an environment (the package-dir mapping of pyproject.toml).
 PACKAGES = ("freebody", "freebody.adapters", "freebody.reference_impl", "freebody.cases")
 # Files of those trees that are copied (source and data; never __pycache__ or numba's caches).
 SOURCE_SUFFIXES = frozenset({".py", ".toml", ".obj", ".json", ".md"})
 # What the build checks imports in the new environment.
 IMPORT_CHECK = "import freebody, freebody.adapters.base, freebody.run.worker"
-DESCRIBE_PREFIX = "freebody-describe: "
-_TMP_PREFIX = ".tmp-"
-_KEY_HASH_CHARS = 12
-_KEY_RE = re.compile(rf"^[a-z0-9][a-z0-9.-]*-[0-9a-f]{{{_KEY_HASH_CHARS}}}$")
-
-_NAME = r"[A-Za-z0-9](?:[A-Za-z0-9._-]*[A-Za-z0-9])?"
-_VERSION_CLAUSE = r"(?:~=|===|==|!=|<=|>=|<|>)[ \t]*[A-Za-z0-9.*+!_-]+"
-_REQUIREMENT_RE = re.compile(rf"[ \t]*(?P<name>{_NAME})[ \t]*"
-                             rf"(?:\[[ \t]*(?P<extras>{_NAME}(?:[ \t]*,[ \t]*{_NAME})*)?[ \t]*\])?[ \t]*"
-                             rf"(?P<spec>{_VERSION_CLAUSE}(?:[ \t]*,[ \t]*{_VERSION_CLAUSE})*)?[ \t]*")
 
 
 class EnvironmentFailed(Exception):
@@ -92,106 +69,6 @@ class EnvironmentFailed(Exception):
         self.log = log
         where = f" (install log: {log})" if log is not None else ""
         super().__init__(printable(f"cannot create the environment for {requirement}: {why}{where}"))
-
-
-@dataclass(frozen=True)
-class EngineEnvironment:
-    """A complete environment: ``requirement`` (normalised, e.g. ``mujoco==3.1.6``), its folder
-    ``path`` and its interpreter ``python`` (``path/bin/python``)."""
-
-    requirement: str
-    path: Path
-    python: Path
-
-
-@dataclass(frozen=True)
-class _Requirement:
-    """A parsed requirement: canonical distribution ``name`` and the ``normalised`` text."""
-
-    name: str
-    normalised: str
-    specifier: str
-
-
-# --- requirements and keys ------------------------------------------------------------------------
-
-def canonical_name(name: str) -> str:
-    """A distribution name as pip compares them (PEP 503): lower case, runs of ``-_.`` as ``-``."""
-    return re.sub(r"[-_.]+", "-", name).lower()
-
-
-def _parse(requirement: str) -> _Requirement:
-    """Parse an engine requirement (a name, optional extras and version specifiers; no URL, no
-    environment marker).  InputError (one line) when it is not one."""
-    text = requirement if isinstance(requirement, str) else ""
-    bad = InputError(f"invalid engine requirement {printable(repr(requirement))}: expected a package name "
-                     f"with optional version specifiers, e.g. mujoco==3.1.6")
-    m = _REQUIREMENT_RE.fullmatch(text)
-    if m is None:
-        raise bad
-    try:
-        from packaging.requirements import InvalidRequirement, Requirement
-    except ImportError:  # packaging is not a dependency: the regex alone decides
-        name = canonical_name(m["name"])
-        extras = sorted({canonical_name(e.strip()) for e in (m["extras"] or "").split(",") if e.strip()})
-        spec = ",".join(sorted(re.sub(r"\s+", "", c) for c in (m["spec"] or "").split(",") if c.strip()))
-    else:
-        try:
-            req = Requirement(text)
-        except InvalidRequirement:
-            raise bad from None
-        if req.url or req.marker:
-            raise bad
-        name = canonical_name(req.name)
-        extras = sorted(canonical_name(e) for e in req.extras)
-        spec = str(req.specifier)
-    normalised = name + (f"[{','.join(extras)}]" if extras else "") + spec
-    return _Requirement(name, normalised, spec)
-
-
-def normalise_requirement(requirement: str) -> str:
-    """The normalised text of an engine requirement (``MuJoCo == 3.1.6`` -> ``mujoco==3.1.6``);
-    InputError when it is not a valid requirement."""
-    return _parse(requirement).normalised
-
-
-def requirement_name(requirement: str) -> str:
-    """The canonical distribution name of an engine requirement (``MuJoCo==3.1.6`` -> ``mujoco``);
-    InputError when it is not a valid requirement."""
-    return _parse(requirement).name
-
-
-def _freebody_version() -> str:
-    from . import __version__
-
-    return __version__
-
-
-def environment_key(requirement: str) -> str:
-    """The folder name of a requirement's environment: a readable slug of the normalised
-    requirement and a short hash of (requirement, freebody version, Python major.minor, machine)."""
-    norm = normalise_requirement(requirement)
-    slug = norm.lower()
-    for op, word in (("===", "-"), ("==", "-"), ("~=", "-compat-"), ("!=", "-not-"), (">=", "-ge-"),
-                     ("<=", "-le-"), (">", "-gt-"), ("<", "-lt-")):
-        slug = slug.replace(op, word)
-    slug = re.sub(r"[^a-z0-9.]+", "-", slug).strip("-.")[:60].strip("-.") or "env"
-    identity = json.dumps([norm, _freebody_version(), f"{sys.version_info[0]}.{sys.version_info[1]}",
-                           platform.machine()])
-    return f"{slug}-{hashlib.sha256(identity.encode()).hexdigest()[:_KEY_HASH_CHARS]}"
-
-
-def env_root() -> Path:
-    """The folder of the environments: ``$FREEBODY_ENV_DIR``, else ``$XDG_CACHE_HOME/freebody/envs``
-    (an absolute XDG_CACHE_HOME only, as the XDG specification says), else
-    ``~/.cache/freebody/envs``.  Always absolute."""
-    chosen = os.environ.get(ENV_DIR_VARIABLE)
-    if chosen:
-        return Path(chosen).expanduser().absolute()
-    xdg = os.environ.get("XDG_CACHE_HOME")
-    if xdg and os.path.isabs(xdg):
-        return Path(xdg) / "freebody" / "envs"
-    return Path.home() / ".cache" / "freebody" / "envs"
 
 
 # --- freebody's source ------------------------------------------------------------------------------
@@ -261,21 +138,16 @@ def copy_source(dest: Path, files: dict[str, Path] | None = None) -> str:
 def _write_dist_info(site: Path, core: list[str]) -> None:
     """A minimal ``freebody-<version>.dist-info`` in ``site``, so that pip and importlib.metadata see
     the copied freebody as installed (with its core requirements)."""
-    info = site / f"freebody-{_freebody_version()}.dist-info"
+    info = site / f"freebody-{freebody_version()}.dist-info"
     info.mkdir(parents=True, exist_ok=True)
-    lines = ["Metadata-Version: 2.1", "Name: freebody", f"Version: {_freebody_version()}",
-             "Summary: freebody's source, copied by freebody.environments (not installed by pip)",
+    lines = ["Metadata-Version: 2.1", "Name: freebody", f"Version: {freebody_version()}",
+             "Summary: freebody's source, copied by freebody.envs.build (not installed by pip)",
              *(f"Requires-Dist: {r}" for r in core)]
     (info / "METADATA").write_text("\n".join(lines) + "\n")
     (info / "INSTALLER").write_text("freebody\n")
 
 
 # --- freebody's core dependencies --------------------------------------------------------------------
-
-def _requirement_name(text: str) -> str:
-    m = re.match(_NAME, text.strip())
-    return canonical_name(m.group(0)) if m else text.strip()
-
 
 def core_requirements() -> list[str]:
     """freebody's core dependencies as its metadata states them (``numpy>=1.24``, ...): every
@@ -307,7 +179,7 @@ def core_versions() -> dict[str, str]:
     """Canonical name -> version installed in this process, of each core dependency."""
     out = {}
     for text in core_requirements():
-        name = _requirement_name(text)
+        name = declared_name(text)
         try:
             out[name] = importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:
@@ -379,64 +251,12 @@ def _not_found(why: str, name: str) -> bool:
     """Whether the key error says that the requested distribution itself cannot be found (then
     retrying without the pins cannot help)."""
     m = (re.search(r"(?:No matching distribution found for|satisfies the requirement|there is no version of)"
-                   rf"\s+({_NAME})", why)
-         or re.search(rf"({_NAME}) was not found in the package registry", why))
+                   rf"\s+({NAME_PATTERN})", why)
+         or re.search(rf"({NAME_PATTERN}) was not found in the package registry", why))
     return bool(m) and canonical_name(m.group(1)) == name
 
 
 # --- markers -------------------------------------------------------------------------------------------
-
-def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
-
-
-def _read_marker(folder: Path) -> dict | None:
-    """The marker of an environment folder, or None (missing, unreadable, not a JSON object)."""
-    try:
-        data = json.loads((folder / MARKER).read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
-
-
-def _write_marker(folder: Path, data: dict) -> None:
-    """Write the marker atomically (a temporary file renamed over it)."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{MARKER}.", dir=folder)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2, sort_keys=True)
-            f.write("\n")
-        os.replace(tmp, folder / MARKER)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
-def _site_packages(folder: Path) -> Path:
-    return folder / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
-
-
-@contextlib.contextmanager
-def _locked(root: Path, key: str, waiting: Callable[[], None] | None = None) -> Iterator[None]:
-    """Hold the fcntl lock of one environment (``root/locks/<key>.lock``); ``waiting()`` is called
-    once when another process holds it."""
-    import fcntl
-
-    (root / "locks").mkdir(parents=True, exist_ok=True)
-    with open(root / "locks" / f"{key}.lock", "a") as f:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            if waiting is not None:
-                waiting()
-            fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
-
-
 # --- building ------------------------------------------------------------------------------------------
 
 def _usable(marker: dict | None, env: EngineEnvironment, core: dict[str, str]) -> bool:
@@ -454,7 +274,7 @@ def ensure_environment(requirement: str, progress: Callable[[str], None] | None 
     waits, then reuses it).  ``progress`` receives one line per stage.  InputError for a bad
     requirement; :class:`EnvironmentFailed` when the build fails.
     """
-    req = _parse(requirement)
+    req = parse_requirement(requirement)
     key = environment_key(req.normalised)
     root = env_root()
     path = root / key
@@ -464,21 +284,21 @@ def ensure_environment(requirement: str, progress: Callable[[str], None] | None 
     digest = source_digest(files)
     core = core_versions()
 
-    marker = _read_marker(path)
+    marker = read_marker(path)
     if _usable(marker, env, core) and marker.get("source_digest") == digest:
         _touch(path, marker)
         return env
     root.mkdir(parents=True, exist_ok=True)
-    with _locked(root, key, lambda: say(f"waiting for another freebody process creating the environment "
+    with locked(root, key, lambda: say(f"waiting for another freebody process creating the environment "
                                         f"for {req.normalised}")):
-        marker = _read_marker(path)
+        marker = read_marker(path)
         if _usable(marker, env, core):
             if marker.get("source_digest") != digest:
                 say(f"copying freebody's changed source into the environment for {req.normalised}")
-                marker["source_digest"] = copy_source(_site_packages(path), files)
+                marker["source_digest"] = copy_source(site_packages(path), files)
             _touch(path, marker)
             return env
-        for leftover in root.glob(f"{_TMP_PREFIX}{key}-*"):  # of a process killed while building
+        for leftover in root.glob(f"{TMP_PREFIX}{key}-*"):  # of a process killed while building
             shutil.rmtree(leftover, ignore_errors=True)
         _build(req, env, key, files, core, say)
     return env
@@ -486,12 +306,12 @@ def ensure_environment(requirement: str, progress: Callable[[str], None] | None 
 
 def _touch(path: Path, marker: dict) -> None:
     """Set the marker's ``last_used`` to now (nothing when the folder is not writable)."""
-    marker["last_used"] = _now()
+    marker["last_used"] = now()
     with contextlib.suppress(OSError):
-        _write_marker(path, marker)
+        write_marker(path, marker)
 
 
-def _build(req: _Requirement, env: EngineEnvironment, key: str, files: dict[str, Path],
+def _build(req: ParsedRequirement, env: EngineEnvironment, key: str, files: dict[str, Path],
            core: dict[str, str], say: Callable[[str], None]) -> None:
     """Build the environment in a temporary sibling folder, check it, write its marker and rename it
     into place (under the lock held by the caller)."""
@@ -500,12 +320,12 @@ def _build(req: _Requirement, env: EngineEnvironment, key: str, files: dict[str,
     say(f"creating environment for {req.normalised} in {env.path} (first use; this takes a minute)")
     (root / "logs").mkdir(parents=True, exist_ok=True)
     log_path = root / "logs" / f"{key}.log"
-    tmp = Path(tempfile.mkdtemp(prefix=f"{_TMP_PREFIX}{key}-", dir=root))
+    tmp = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{key}-", dir=root))
     try:
         os.chmod(tmp, 0o755)  # mkdtemp's 0700 would hide a shared FREEBODY_ENV_DIR's environment
         with open(log_path, "w") as log:
-            log.write(f"freebody {_freebody_version()}: environment for {req.normalised}, built in {tmp} "
-                      f"and renamed to {env.path}, {_now()}\n\n")
+            log.write(f"freebody {freebody_version()}: environment for {req.normalised}, built in {tmp} "
+                      f"and renamed to {env.path}, {now()}\n\n")
             uv = find_uv()
             py = tmp / "bin" / "python"
             venv = ([uv, "venv", "--python", sys.executable, tmp] if uv
@@ -521,28 +341,12 @@ def _build(req: _Requirement, env: EngineEnvironment, key: str, files: dict[str,
                 return _run_logged([*cmd, *requirements], log)
 
             say("copying freebody")
-            site = _site_packages(tmp)
+            site = site_packages(tmp)
             digest = copy_source(site, files)
             declared = core_requirements()
             _write_dist_info(site, declared)
 
-            # each core dependency at this process's version (as declared when it is not installed here)
-            pins = [f"{n}=={core[n]}" if n in core else r
-                    for r in declared for n in [_requirement_name(r)] if n != req.name]
-            say(f"installing {' '.join([req.normalised, *pins])}")
-            code, out = install([req.normalised, *pins])
-            pinned = True
-            if code != 0:
-                why = key_error(out)
-                if _not_found(why, req.name):
-                    raise EnvironmentFailed(req.normalised, why, log_path)
-                say(f"installing beside freebody's pinned versions failed ({why.rstrip('.')}); "
-                    f"retrying without the pins")
-                unpinned = [r for r in declared if _requirement_name(r) != req.name]
-                code, out = install([req.normalised, *unpinned])
-                pinned = False
-                if code != 0:
-                    raise EnvironmentFailed(req.normalised, key_error(out), log_path)
+            pinned = _install_engine(req, core, declared, install, say, log_path)
 
             say("checking")
             code, out = _run_logged([py, "-P", "-c", IMPORT_CHECK], log, cwd=tmp)
@@ -556,13 +360,13 @@ def _build(req: _Requirement, env: EngineEnvironment, key: str, files: dict[str,
             _check_version(req, installed, log_path)
             built = time.monotonic() - started
             log.write(f"ready in {built:.1f} s\n")
-        now = _now()
-        _write_marker(tmp, {
-            "requirement": req.normalised, "key": key, "freebody_version": _freebody_version(),
+        stamp = now()
+        write_marker(tmp, {
+            "requirement": req.normalised, "key": key, "freebody_version": freebody_version(),
             "python": platform.python_version(), "base_python": sys.executable,
             "machine": platform.machine(), "installer": "uv" if uv else "pip", "pins": pinned,
             "core": core, "core_installed": core_installed, "installed": installed,
-            "source_digest": digest, "created": now, "last_used": now, "build_seconds": round(built, 1)})
+            "source_digest": digest, "created": stamp, "last_used": stamp, "build_seconds": round(built, 1)})
         if env.path.exists():  # an incomplete or outdated folder
             shutil.rmtree(env.path)
         os.rename(tmp, env.path)
@@ -570,6 +374,30 @@ def _build(req: _Requirement, env: EngineEnvironment, key: str, files: dict[str,
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     say(f"ready in {built:.0f} s")
+
+
+def _install_engine(req: ParsedRequirement, core: dict[str, str], declared: list[str],
+                    install: Callable[[list[str]], tuple[int, str]], say: Callable[[str], None],
+                    log_path: Path) -> bool:
+    """Install the engine beside freebody's core dependencies, each pinned to this process's version
+    (as declared when it is not installed here); when that fails for another reason than the engine
+    not existing, once more with the core dependencies as declared.  Whether the pins held."""
+    pins = [f"{n}=={core[n]}" if n in core else r
+            for r in declared for n in [declared_name(r)] if n != req.name]
+    say(f"installing {' '.join([req.normalised, *pins])}")
+    code, out = install([req.normalised, *pins])
+    if code == 0:
+        return True
+    why = key_error(out)
+    if _not_found(why, req.name):
+        raise EnvironmentFailed(req.normalised, why, log_path)
+    say(f"installing beside freebody's pinned versions failed ({why.rstrip('.')}); "
+        f"retrying without the pins")
+    unpinned = [r for r in declared if declared_name(r) != req.name]
+    code, out = install([req.normalised, *unpinned])
+    if code != 0:
+        raise EnvironmentFailed(req.normalised, key_error(out), log_path)
+    return False
 
 
 _INSTALLED_SCRIPT = r"""
@@ -594,7 +422,7 @@ print(json.dumps([engine, core]))
 """
 
 
-def _installed(py: Path, req: _Requirement, core: dict[str, str], log,
+def _installed(py: Path, req: ParsedRequirement, core: dict[str, str], log,
                cwd: Path) -> tuple[dict[str, str] | None, dict[str, str | None]]:
     """(distribution -> version in the environment of the requirement's distribution, first, and of
     its direct dependencies, or None when it is not installed; the versions there of the core
@@ -607,7 +435,7 @@ def _installed(py: Path, req: _Requirement, core: dict[str, str], log,
     return (engine if isinstance(engine, dict) and engine else None), core_there
 
 
-def _check_version(req: _Requirement, installed: dict[str, str], log: Path) -> None:
+def _check_version(req: ParsedRequirement, installed: dict[str, str], log: Path) -> None:
     """EnvironmentFailed when the installed version does not satisfy the requirement (checked when
     packaging is importable; pip and uv guarantee it anyway)."""
     if not req.specifier:
@@ -621,153 +449,3 @@ def _check_version(req: _Requirement, installed: dict[str, str], log: Path) -> N
         raise EnvironmentFailed(req.normalised, f"{req.name} {version} was installed, which is not "
                                                 f"{req.specifier}", log)
 
-
-# --- listing and clearing ------------------------------------------------------------------------------
-
-def _folder_size(folder: Path) -> int:
-    total = 0
-    for dirpath, _, filenames in os.walk(folder):
-        for f in filenames:
-            with contextlib.suppress(OSError):
-                total += os.lstat(os.path.join(dirpath, f)).st_size
-    return total
-
-
-def _environment_folders(root: Path) -> list[Path]:
-    """The environment folders of ``root`` (complete or not; not the temporary ones)."""
-    if not root.is_dir():
-        return []
-    return sorted(p for p in root.iterdir() if p.is_dir() and not p.is_symlink()
-                  and ((p / MARKER).is_file() or (_KEY_RE.match(p.name) and (p / "pyvenv.cfg").exists())))
-
-
-def list_environments() -> list[dict]:
-    """The complete environments of :func:`env_root`, sorted by requirement: each a dict of
-    requirement, path, size_bytes, created, last_used, freebody_version, python, installed
-    (distribution -> version of the engine's packages), source_digest, pins (whether freebody's
-    core dependencies are pinned to this process's versions) and core_installed (their versions)."""
-    out = []
-    for folder in _environment_folders(env_root()):
-        marker = _read_marker(folder)
-        if marker is None:
-            continue
-        out.append({"requirement": marker.get("requirement"), "path": str(folder),
-                    "size_bytes": _folder_size(folder), "created": marker.get("created"),
-                    "last_used": marker.get("last_used"), "freebody_version": marker.get("freebody_version"),
-                    "python": marker.get("python"), "installed": marker.get("installed") or {},
-                    "source_digest": marker.get("source_digest"), "pins": marker.get("pins"),
-                    "core_installed": marker.get("core_installed") or {}})
-    return sorted(out, key=lambda e: (str(e["requirement"]), e["path"]))
-
-
-def clear_environments(requirements: list[str] | None = None) -> list[Path]:
-    """Remove every environment (``None``; also the leftovers of interrupted builds) or those of
-    the named requirements (any freebody or Python version); return the removed folders.  Each is
-    removed under its lock (a build in progress is waited for).  Only folders that are
-    environments are touched, whatever else :func:`env_root` holds."""
-    root = env_root()
-    wanted = None if requirements is None else {normalise_requirement(r) for r in requirements}
-    keys = set() if wanted is None else {environment_key(r) for r in wanted}
-    removed = []
-    for folder in _environment_folders(root):
-        if wanted is not None and folder.name not in keys \
-                and (_read_marker(folder) or {}).get("requirement") not in wanted:
-            continue
-        with _locked(root, folder.name):
-            if folder.exists():
-                shutil.rmtree(folder)
-                removed.append(folder)
-        with contextlib.suppress(OSError):
-            (root / "logs" / f"{folder.name}.log").unlink()
-    if wanted is None and root.is_dir():
-        for leftover in sorted(root.glob(f"{_TMP_PREFIX}*")):
-            key = leftover.name[len(_TMP_PREFIX):].rsplit("-", 1)[0]
-            if leftover.is_dir() and _KEY_RE.match(key):
-                with _locked(root, key):
-                    if leftover.exists():
-                        shutil.rmtree(leftover)
-                        removed.append(leftover)
-    return removed
-
-
-# --- describing an engine in an environment ------------------------------------------------------------
-
-def describe_engine(env: EngineEnvironment, engine: str, timeout: float = 300, entry=None) -> dict:
-    """What the environment's freebody says of ``engine`` (a name, versioned or not): {"engine",
-    "available", "version", "integrators", "precisions", "error", "unsupported"} (``unsupported``:
-    why freebody's adapter cannot drive that version, or None), from ``python -m
-    freebody.environments describe ENGINE`` run with the environment's interpreter.  A crash or a
-    timeout is ``available: False`` with the reason in ``error``.  ``entry``: the engine's
-    :class:`~freebody.adapters.base.EngineEntry` in this process's registry, registered there first
-    (an engine registered at run time, which the environment's freebody does not know)."""
-    extra = [json.dumps(entry._asdict())] if entry is not None else []
-    failed = {"engine": engine, "available": False, "version": None, "integrators": None,
-              "precisions": None, "unsupported": None}
-    try:
-        proc = subprocess.run([str(env.python), "-P", "-m", "freebody.environments", "describe", engine,
-                               *extra],
-                              capture_output=True, stdin=subprocess.DEVNULL, cwd=env.path,
-                              env=clean_environ(), timeout=timeout)
-    except subprocess.TimeoutExpired:
-        return {**failed, "error": f"describing {engine} timed out after {timeout:g} s"}
-    except OSError as e:
-        return {**failed, "error": f"cannot run {env.python}: {e.strerror or e}"}
-    for line in reversed(proc.stdout.decode("utf-8", "replace").splitlines()):
-        if line.startswith(DESCRIBE_PREFIX):
-            try:
-                data = json.loads(line[len(DESCRIBE_PREFIX):])
-            except ValueError:
-                break
-            if isinstance(data, dict):
-                return data
-    stderr = [ln for ln in proc.stderr.decode("utf-8", "replace").splitlines() if ln.strip()]
-    why = stderr[-1].strip() if stderr else f"exit code {proc.returncode}"
-    return {**failed, "error": f"describing {engine} failed: {why}"}
-
-
-def _describe(engine: str, entry: dict | None = None) -> dict:
-    """The description of ``engine`` in this process (see :func:`describe_engine`); ``entry``: the
-    fields of its registry entry, registered under its base name first."""
-    from .adapters import base
-    from .adapters.base import EngineMissing, UnknownEngine, is_available, load_adapter
-    from .adapters.capture import capture_output
-
-    if entry is not None:
-        name = base.split_engine_name(engine)[0]
-        base.ENGINES[name] = base.EngineEntry(**entry)
-
-    out = {"engine": engine, "available": False, "version": None, "integrators": None,
-           "precisions": None, "error": None, "unsupported": None}
-    try:
-        with capture_output():  # engine banners must not reach stdout, which carries the JSON
-            if not is_available(engine):
-                raise EngineMissing(f"{engine} is not installed in this environment")
-            cls = load_adapter(engine)
-            version = str(cls.engine_version())
-            out.update(version=version, integrators=list(cls.offered_integrators()),
-                       precisions=list(cls.precisions), available=True,
-                       opt_in=list(getattr(cls, "opt_in_integrators", ()) or ()))
-            unsupported = getattr(base, "unsupported_version", None)  # the adapter's version range
-            out["unsupported"] = unsupported(cls, version) if unsupported is not None else None
-    except UnknownEngine as e:
-        out["error"] = str(e.args[0]) if e.args else str(e)
-    except Exception as e:
-        out["error"] = str(e) if isinstance(e, EngineMissing) else f"{type(e).__name__}: {e}"
-    return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m freebody.environments describe ENGINE``: one JSON line prefixed with
-    :data:`DESCRIBE_PREFIX` on stdout."""
-    argv = sys.argv[1:] if argv is None else argv
-    if len(argv) not in (2, 3) or argv[0] != "describe":
-        sys.stderr.write("usage: python -m freebody.environments describe ENGINE [ENTRY-JSON]\n")
-        return 2
-    entry = json.loads(argv[2]) if len(argv) == 3 else None
-    sys.stdout.write(DESCRIBE_PREFIX + json.dumps(_describe(argv[1], entry)) + "\n")
-    sys.stdout.flush()
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

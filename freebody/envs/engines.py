@@ -2,7 +2,7 @@
 
 An engine named with a version (``mujoco==3.1.6``) or registered with an ``environment`` (an engine
 whose package pins conflict with another engine's, :class:`~freebody.adapters.base.EngineEntry`)
-runs in worker processes of an isolated environment that :mod:`freebody.environments` creates on
+runs in worker processes of an isolated environment that :mod:`freebody.envs.build` creates on
 first use and caches.  This module maps engine names to those environments for one invocation:
 it builds them (progress on stderr), asks each what its engine offers (integrators, precisions,
 version: the parent cannot import an engine version it does not hold), and gives the executor the
@@ -56,10 +56,10 @@ def _progress(line: str) -> None:
 
 @lru_cache(maxsize=None)
 def environment(engine: str):
-    """The isolated environment of an engine (:class:`freebody.environments.EngineEnvironment`),
+    """The isolated environment of an engine (:class:`freebody.envs.cache.EngineEnvironment`),
     created on first use; InputError (one line: the requirement, pip's reason, the log) when it
     cannot be built."""
-    from ..environments import EnvironmentFailed, ensure_environment
+    from .build import EnvironmentFailed, ensure_environment
 
     req = requirement(engine)
     if req is None:
@@ -73,8 +73,8 @@ def environment(engine: str):
 @lru_cache(maxsize=None)
 def describe(engine: str) -> dict:
     """What an isolated engine offers, asked in its environment: ``available``, ``version``,
-    ``integrators``, ``precisions``, ``error`` (see :func:`freebody.environments.describe_engine`)."""
-    from ..environments import describe_engine
+    ``integrators``, ``precisions``, ``error`` (see :func:`freebody.envs.describe.describe_engine`)."""
+    from .describe import describe_engine
 
     return describe_engine(environment(engine), engine, entry=registry()[base_engine(engine)])
 

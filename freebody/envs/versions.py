@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from .. import tolerances as tol
 from ..adapters.base import UnknownEngine, base_engine, split_engine_name
 from ..errors import InputError
-from .compare import run_key, scheme_of, scheme_text
+from ..results.compare import run_key, scheme_of, scheme_text
 
 
 def _base(engine: str, _memo: dict[str, str] | None = None) -> str:

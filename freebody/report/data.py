@@ -388,7 +388,7 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, str, str, flo
     of its ok runs reproduce (or 'none'), 'n of N', the runs that reproduce another map or none
     ('case dt: map', with the case's name), the largest distance (rad) of its runs from the maps
     they reproduce or come closest to)."""
-    from .findings import _majority_map, none_text, saturated, scheme_key, scheme_set
+    from .findings import majority_map, none_text, saturated, scheme_key, scheme_set
 
     by_label: dict[str, list[dict]] = {}
     for r in runs:
@@ -396,7 +396,7 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, str, str, flo
             by_label.setdefault(label(r), []).append(r)
     out = []
     for lab, rs in by_label.items():
-        best, n, total = _majority_map(rs)
+        best, n, total = majority_map(rs)
         other = []
         for r in rs:
             if best is None or best not in scheme_set(r):

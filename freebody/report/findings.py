@@ -41,9 +41,10 @@ import numpy as np
 from .. import tolerances as tol
 from ..adapters.base import REFERENCE_ENGINE
 from ..numbers import finite_or_none
-from ..run.metrics import ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, STATE_GROWTH
+from ..run.metrics import ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, STATE_GROWTH
 from ..run.records import Status
 from ..results import identification
+from ..results.judgement import JUDGEMENT, map_distance
 from .summary import run_label
 
 SEVERITIES = ("error", "warning", "info")  # most severe first
@@ -142,73 +143,51 @@ def _e(x: float | None) -> str:
     return "-" if x is None else format(x, ".1e")
 
 
-# --- the maps a run reproduces ---------------------------------------------------------------------
+# --- the judgement of a run: stored with it (results.json ``judgement``), read here -------------------
 
-def _match(run: dict) -> dict | None:
-    m = run.get("matches_reference")
-    return m if isinstance(m, dict) and run.get("engine") != REFERENCE_ENGINE else None
+def judged(run: dict) -> dict:
+    """The run's ``judgement`` (:func:`freebody.results.judgement.run_judgement`: computed when the
+    run was recorded, or by the schema-5 migration of an older document)."""
+    return run[JUDGEMENT]
 
 
 def scheme_set(run: dict) -> tuple[str, ...]:
     """The maps a run reproduces (its tie, in candidate order), () when none or not identified."""
-    m = _match(run)
-    if m is None:
-        return ()
-    return identification.reproduced(m)
+    return tuple(judged(run)["schemes"])
 
 
 def scheme_key(run: dict) -> tuple[str, bool] | None:
     """(map, reproduced) of a judged ok engine run: the map it reproduces (the first of a tie), or
     the closest map and False; None for a run that was not judged (the reference engine, a run
     that is not ok, a results file without identification)."""
-    m = _match(run)
-    if m is None or not _ok(run):
-        return None
-    tie = identification.reproduced(m)
-    if tie:
-        return tie[0], True
-    if isinstance(m.get("closest"), str):
-        return m["closest"], False
-    return None
+    j = judged(run)
+    return None if j["scheme"] is None else (j["scheme"], j["reproduced"])
 
 
-def map_level(run: dict, name: str) -> float | None:
-    """The round-off level (rad, at the run's last sample) of map ``name`` on this run: its
-    ``levels_rad``, else ``threshold_rad`` when ``name`` is the closest map; floored at
-    SCHEME_ROUNDOFF_FLOOR_RAD."""
-    m = _match(run) or {}
-    level = finite_or_none((m.get("levels_rad") or {}).get(name))
-    if level is None and m.get("closest") == name:
-        level = finite_or_none(m.get("threshold_rad"))
-    return None if level is None else max(level, tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+def saturated(run: dict) -> bool:
+    """Whether a run that reproduces no map is as far from the closest map as a lost orientation
+    is (beyond CONVERGENCE_ORIENTATION_SATURATED_RAD): every map is then about as far, and which
+    one is closest says nothing about the scheme."""
+    return judged(run)["saturated"]
 
 
-def map_distance(run: dict, name: str) -> float | None:
-    """The largest orientation difference (rad) of the run from map ``name``."""
-    m = _match(run) or {}
-    d = finite_or_none((m.get("candidates") or {}).get(name))
-    if d is None and m.get("closest") == name:
-        d = finite_or_none(m.get("max_orientation_diff_rad"))
-    return d
+def blew_up(run: dict) -> bool:
+    """Whether an ok run's |w| or kinetic energy went beyond the blow-up bounds
+    (``state_growth["blow_up_t_s"]``: BLOW_UP_OMEGA_FACTOR x the truth's max |w| or
+    BLOW_UP_ENERGY_FACTOR x its max KE)."""
+    return judged(run)["blew_up"]
 
 
-def map_ratio(run: dict, name: str) -> float | None:
-    """max over samples of (difference from map ``name``) / (its round-off level): <= 1 reproduces."""
-    m = _match(run) or {}
-    r = finite_or_none((m.get("ratios") or {}).get(name))
-    if r is None:
-        d, level = map_distance(run, name), map_level(run, name)
-        r = d / level if d is not None and level else None
-    return r
+def capped(run: dict) -> bool:
+    """Whether an ok run turned faster than its engine's declared rotation cap per step allows
+    (``state_growth["rotation_cap_t_s"]``)."""
+    return judged(run)["capped"]
 
 
-def map_order(name: str) -> int | None:
-    """The formal order of a reference map (reference integrators and engine-equivalent maps)."""
-    from ..reference_impl.engine_maps import ENGINE_MAPS
-    from ..reference_impl.integrators import INTEGRATORS
-
-    entry = INTEGRATORS.get(name) or ENGINE_MAPS.get(name)
-    return entry.order if entry is not None else None
+def run_order(run: dict) -> int | None:
+    """The formal order of a run: its integrator's for a reference run; for an engine run the
+    lowest order of the maps it reproduces (or of its closest map); None when unknown."""
+    return judged(run)["order"]
 
 
 def map_summary(name: str) -> str:
@@ -218,19 +197,6 @@ def map_summary(name: str) -> str:
 
     entry = INTEGRATORS.get(name) or ENGINE_MAPS.get(name)
     return entry.summary if entry is not None else ""
-
-
-def run_order(run: dict) -> int | None:
-    """The formal order of a run: its integrator's for a reference run; for an engine run the
-    lowest order of the maps it reproduces (or of its closest map); None when unknown."""
-    if run.get("engine") == REFERENCE_ENGINE:
-        return map_order(str(run.get("integrator")))
-    names = scheme_set(run)
-    if not names:
-        key = scheme_key(run)
-        names = (key[0],) if key else ()
-    orders = [o for o in map(map_order, names) if o is not None]
-    return min(orders) if orders else None
 
 
 # --- scheme groups (the verdict page) ----------------------------------------------------------------
@@ -308,8 +274,9 @@ def scheme_groups(case_runs: list[dict]) -> list[SchemeGroup]:
         if reproduced:
             sets = [set(scheme_set(r)) or {scheme} for r in rs]
             tie += [x for x in scheme_set(rs[0]) if x != scheme and all(x in st for st in sets)]
-        members = tuple(Member(r, label(r), float(r["dt"]), map_distance(r, scheme), map_level(r, scheme),
-                               map_ratio(r, scheme), _metric(r, ORIENTATION_ERROR_MAX)) for r in rs)
+        members = tuple(Member(r, label(r), float(r["dt"]), judged(r)["scheme_distance_rad"],
+                               judged(r)["scheme_level_rad"], judged(r)["scheme_ratio"],
+                               _metric(r, ORIENTATION_ERROR_MAX)) for r in rs)
         groups.append(SchemeGroup(str(rs[0]["case"]), scheme, reproduced, tuple(tie), members))
     groups.sort(key=lambda g: not g.reproduced)
     return groups
@@ -468,28 +435,6 @@ def status_findings(runs: list[dict]) -> list[Finding]:
 
 # --- blow-ups, the rotation cap per step, saturated orientations ---------------------------------
 
-def growth(run: dict) -> dict:
-    """The run's ``state_growth`` (:class:`freebody.run.metrics.GrowthStats`), {} when it has none
-    (results written before it, a run without samples)."""
-    g = run.get(STATE_GROWTH)
-    return g if isinstance(g, dict) else {}
-
-
-def blew_up(run: dict) -> bool:
-    """Whether an ok run's |w| or kinetic energy went beyond the blow-up bounds
-    (``state_growth["blow_up_t_s"]``: BLOW_UP_OMEGA_FACTOR x the truth's max |w| or
-    BLOW_UP_ENERGY_FACTOR x its max KE)."""
-    return _ok(run) and finite_or_none(growth(run).get("blow_up_t_s")) is not None
-
-
-def capped(run: dict) -> bool:
-    """Whether an ok run turned faster than its engine's declared rotation cap per step allows
-    (``state_growth["rotation_cap_t_s"]``)."""
-    g = growth(run)
-    return _ok(run) and finite_or_none(g.get("rotation_cap_t_s")) is not None \
-        and finite_or_none(g.get("step_rotation_cap_rad")) is not None
-
-
 def factor(x: float) -> str:
     """A ratio as '797' or '6.5e3' (three digits below 1000, else two in scientific notation)."""
     if x < 1e3:
@@ -508,23 +453,12 @@ def angle_text(a: float) -> str:
 
 def cap_text(run: dict) -> str:
     """'the pi/4 rotation cap per step (|w| dt reaches 1.5 rad from t = 0 s)' of a capped run."""
-    g = growth(run)
+    g = run[STATE_GROWTH]
     cap = float(g["step_rotation_cap_rad"])
     rot = finite_or_none(g.get("rotation_per_step_max_rad"))
     reach = "" if rot is None else f"|w| dt reaches {rot:.3g} rad"
     return (f"the {angle_text(cap)} rotation cap per step ({reach}{', ' if reach else ''}beyond "
             f"{cap:.3g} rad from t = {float(g['rotation_cap_t_s']):.4g} s; its conventions: rotation cap)")
-
-
-def saturated(run: dict) -> bool:
-    """Whether a run that reproduces no map is as far from the closest map as a lost orientation
-    is (beyond CONVERGENCE_ORIENTATION_SATURATED_RAD): every map is then about as far, and which
-    one is closest says nothing about the scheme."""
-    key = scheme_key(run)
-    if key is None or key[1]:
-        return False
-    d = map_distance(run, key[0])
-    return d is None or d > tol.CONVERGENCE_ORIENTATION_SATURATED_RAD
 
 
 def none_text(run: dict, name: str | None = None, sep: str = " (") -> str:
@@ -546,7 +480,7 @@ def _scheme_text(run: dict) -> str:
     if reproduced:
         summary = map_summary(name)
         return f"it reproduces {name}" + (f" ({summary})" if summary else "")
-    d = map_distance(run, name)
+    d = judged(run)["scheme_distance_rad"]
     if saturated(run):
         return (f"its orientation is lost (every map is {_e(d)} rad or more away, beyond "
                 f"{tol.CONVERGENCE_ORIENTATION_SATURATED_RAD:g} rad: no distance ranks a scheme)")
@@ -561,7 +495,7 @@ def blow_up_findings(runs: list[dict]) -> list[Finding]:
     for r in runs:
         if not blew_up(r):
             continue
-        g = growth(r)
+        g = r[STATE_GROWTH]
         w, wr = finite_or_none(g.get("omega_max_rad_s")), finite_or_none(g.get("omega_ratio"))
         ker, t_w = finite_or_none(g.get("kinetic_energy_ratio")), finite_or_none(g.get("omega_max_t_s"))
         t0 = float(g["blow_up_t_s"])
@@ -600,7 +534,7 @@ def rotation_cap_findings(runs: list[dict]) -> list[Finding]:
     for r in runs:
         if r.get("engine") == REFERENCE_ENGINE or not capped(r) or blew_up(r):  # a blow-up's finding names it
             continue
-        g = growth(r)
+        g = r[STATE_GROWTH]
         why = _scheme_text(r)
         text = (f"{cap_text(r)}: each step turns the body less than |w| dt, while the angular velocity is "
                 f"kept; its orientation error {_e(_metric(r, ORIENTATION_ERROR_MAX))} rad is the cap's"
@@ -670,26 +604,25 @@ def expected_order(runs: list[dict], state_dependent: bool | None = None) -> Exp
     ok = [r for r in runs if _ok(r)]
     if not ok:
         return None
-    if ok[0].get("engine") == REFERENCE_ENGINE:
-        name = str(ok[0].get("integrator"))
-        o = map_order(name)
+    if ok[0]["engine"] == REFERENCE_ENGINE:
+        name, o = str(ok[0]["integrator"]), run_order(ok[0])
         return None if o is None else ExpectedOrder(o, o, (name,), own=True)
     common: set[int] | None = None
-    names: list[str] = []
+    order_of: dict[str, int | None] = {}  # the maps in the order first seen -> formal order
     closest = False
     for r in ok:
-        key = scheme_key(r)
-        if key is None or saturated(r):
+        maps = judged(r)["order_maps"]  # [] for a run not judged, or whose orientation is lost
+        if not maps:
             continue
-        tie = scheme_set(r) or (key[0],)
-        closest = closest or not key[1]
-        orders = {o for o in map(map_order, tie) if o is not None}
+        closest = closest or not judged(r)["reproduced"]
+        orders = {o for _, o in maps if o is not None}
         common = orders if common is None else common & orders
-        names += [n for n in tie if n not in names]
+        for n, o in maps:
+            order_of.setdefault(n, o)
     if not common or len(common) != 1:
         return None
     o = common.pop()
-    maps = tuple(n for n in names if map_order(n) == o)
+    maps = tuple(n for n, order in order_of.items() if order == o)
     limited = o > 1 and bool(state_dependent) and any(r.get("load_sampling") == PER_STEP for r in ok)
     return ExpectedOrder(1 if limited else o, o, maps, closest, limited)
 
@@ -730,7 +663,8 @@ def no_map_findings(runs: list[dict]) -> list[Finding]:
         if blew_up(r):  # its blow-up finding says what identification says
             continue
         name = key[0]
-        d, level, ratio = map_distance(r, name), map_level(r, name), map_ratio(r, name)
+        j = judged(r)
+        d, level, ratio = j["scheme_distance_rad"], j["scheme_level_rad"], j["scheme_ratio"]
         cause = f"; cause: {cap_text(r)}" if capped(r) else ""
         if saturated(r):  # before undecidable: no closest map of a lost orientation is named
             out.append(_finding("no-map", r, f"reproduces no map, and its orientation is lost: every map is "
@@ -738,8 +672,8 @@ def no_map_findings(runs: list[dict]) -> list[Finding]:
                                              f"{tol.CONVERGENCE_ORIENTATION_SATURATED_RAD:g} rad no distance "
                                              f"ranks a scheme){cause}", size_rad=d, source="matches_reference"))
             continue
-        if identification.verdict(_match(r)) == identification.UNDECIDABLE:
-            maps = [x for x in (_match(r).get("undecidable") or []) if isinstance(x, str)]
+        if identification.verdict(r["matches_reference"]) == identification.UNDECIDABLE:
+            maps = [x for x in (r["matches_reference"].get("undecidable") or []) if isinstance(x, str)]
             out.append(_finding("undecidable", r, f"undecidable here: {', '.join(maps) or 'the maps near it'} "
                                                   f"identify nothing on this case (round-off level at "
                                                   f"{tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD:g} rad, or perturbed copies "
@@ -784,7 +718,7 @@ def disagreement_findings(runs: list[dict], trajectory: TrajectoryOf | None = No
     return out
 
 
-def _majority_map(rs: list[dict]) -> tuple[str | None, int, int]:
+def majority_map(rs: list[dict]) -> tuple[str | None, int, int]:
     """(the map most of these runs reproduce (on a tie of counts, the first seen), their number, all)."""
     sets = [scheme_set(r) for r in rs if scheme_key(r) is not None]
     counts: dict[str, int] = {}
@@ -805,16 +739,16 @@ def switch_findings(runs: list[dict]) -> list[Finding]:
         if scheme_key(r) is not None:
             by_label.setdefault(label(r), []).append(r)
     for lab, rs in by_label.items():
-        best, n, total = _majority_map(rs)
+        best, n, total = majority_map(rs)
         if best is None or n == total:
             continue
         for r in rs:
             key = scheme_key(r)
-            undecided = (_match(r) or {}).get("undecidable") or []  # its usual map may still be it here
+            undecided = r["matches_reference"].get("undecidable") or []  # its usual map may still be it here
             if key[1] and best not in scheme_set(r) and best not in undecided:
                 cause = f"; cause: {cap_text(r)}" if capped(r) else ""
                 out.append(_finding("scheme-switch", r, f"reproduces {key[0]} here; {n} of its {total} runs "
-                                                        f"reproduce {best}{cause}", size_rad=map_distance(r, best),
+                                                        f"reproduce {best}{cause}", size_rad=map_distance(r["matches_reference"], best),
                                     source="matches_reference"))
     return out
 
@@ -886,7 +820,7 @@ def vs_engine_findings(runs: list[dict]) -> list[Finding]:
             continue
         d = finite_or_none(v.get("max_orientation_diff_rad"))
         key = scheme_key(r)
-        level = map_level(r, key[0]) if key else None
+        level = judged(r)["scheme_level_rad"] if key else None
         limit = level if level is not None else tol.SCHEME_ROUNDOFF_FLOOR_RAD
         if d is None:
             out.append(_finding("vs-engine-unavailable", r, f"its difference from {other} is not finite",

@@ -16,7 +16,7 @@ from pathlib import Path
 from . import data as rd
 from . import findings as fd
 from . import markdown as md
-from ..results.versions import VERSIONS_NOTE, side_by_side, version_table
+from ..envs.versions import VERSIONS_NOTE, side_by_side, version_table
 from .version_findings import VERSIONS_ANCHOR
 from ..run.records import Status
 

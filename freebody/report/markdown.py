@@ -15,7 +15,7 @@ from . import data as rd
 from . import findings as fd
 from ..adapters.base import REFERENCE_ENGINE
 from ..numbers import finite_or_none
-from ..results.versions import VERSIONS_NOTE, side_by_side, version_table
+from ..envs.versions import VERSIONS_NOTE, side_by_side, version_table
 from .version_findings import KIND as VERSION_KIND, VERSIONS_ANCHOR
 from ..run.convergence import SHORT_NAMES
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL,

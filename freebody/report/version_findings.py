@@ -3,7 +3,7 @@ engine that one results document ran (``freebody run --engine mujoco==3.1.6 --en
 
 - one ``version-change`` finding per (case, engine run) whose status, scheme (the reference map its
   runs reproduce) or observed order changed between the first and the last version
-  (:func:`freebody.results.versions.side_by_side` decides, as ``freebody compare --against``);
+  (:func:`freebody.envs.versions.side_by_side` decides, as ``freebody compare --against``);
 - one per engine default that freebody overrides whose default differs between the versions
   (freebody sets it, so the runs do not use it; shown because an upgrade moved it).
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-from ..results.versions import VersionCell, VersionRow, engine_of, side_by_side, version_groups
+from ..envs.versions import VersionCell, VersionRow, engine_of, side_by_side, version_groups
 from .findings import KINDS, Finding
 
 KIND = "version-change"

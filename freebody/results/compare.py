@@ -459,7 +459,7 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
 
     strict : every change beyond tolerance fails (improvements included).
     engines, cases : compare only the runs of these engines / cases (on both sides)."""
-    from .versions import align_engine_names
+    from ..envs.versions import align_engine_names
 
     baseline, current = upgrade_names(baseline), upgrade_names(current)
     tols = tolerances or default_tolerances()

@@ -1,8 +1,8 @@
-"""results.json (schema version 4) and the per-run trajectory files, written atomically.
+"""results.json (schema version 5) and the per-run trajectory files, written atomically.
 
 results.json::
 
-    {"schema_version": 4, "freebody_version", "created", "platform", "engines": {name: version},
+    {"schema_version": 5, "freebody_version", "created", "platform", "engines": {name: version},
      "incomplete": false, "runs": [RunResult.to_json(), ...], ...}
 
 Schema 2 added each run's ``experiment`` (what was simulated: :mod:`freebody.run.experiment`)
@@ -24,6 +24,11 @@ per step and the engine's declared cap) and, in ``matches_reference``, ``verdict
 run's ``matches_reference`` gets the verdict its other keys imply
 (:func:`freebody.results.identification.verdict`); the other new keys stay absent, and readers
 treat an absent key as unknown.
+
+Schema 5 (issue 27: judging in one place) added, per run, ``judgement``: the facts its findings
+present (blow-up, rotation cap, the map it reproduces or comes closest to, saturation, its formal
+order; :mod:`freebody.results.judgement`), computed once when the run is recorded; an older
+document's runs get theirs on load from their stored fields, by the same function.
 
 Renamed reference integrators (``symplectic-euler`` is now ``lie-euler``) do not change the format
 and bump no schema version: every document read, of either version, has the old names replaced by
@@ -57,8 +62,8 @@ from ..reference_impl.conventions import Trajectory
 from ..reference_impl.integrators import INTEGRATOR_ALIASES
 from .io import read_json, write_npz_atomic
 
-SCHEMA_VERSION = 4
-READABLE_SCHEMA_VERSIONS = (1, 2, 3, 4)  # results.json / baseline versions this freebody reads
+SCHEMA_VERSION = 5
+READABLE_SCHEMA_VERSIONS = (1, 2, 3, 4, 5)  # results.json / baseline versions this freebody reads
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
 
 
@@ -254,7 +259,7 @@ _RUN_FIELD_TYPES = {
     "matches_reference": (dict, type(None)), "vs_engine": (dict, type(None)), "engine_output": (list, type(None)),
     "wall_time_s": (*_NUMBER, type(None)), "diverged_at_s": (*_NUMBER, type(None)),
     "compile_time_s": (*_NUMBER, type(None)), "experiment": (dict, type(None)),
-    "state_growth": (dict, type(None)),
+    "state_growth": (dict, type(None)), "judgement": (dict, type(None)),
 }
 _JSON_TYPE = {str: "a string", int: "an integer", float: "a number", dict: "an object", list: "an array",
               type(None): "null"}
@@ -307,9 +312,19 @@ def _update_to_4(doc: dict) -> dict:
     return doc
 
 
+def _update_to_5(doc: dict) -> dict:
+    """Schema 4 -> 5: each run gets its ``judgement`` (:mod:`freebody.results.judgement`), computed
+    from its stored fields by the function the run layer calls when it records a run (map names
+    brought up to date first, as every reader sees them), so an old document's findings are today's."""
+    from .judgement import with_judgement
+
+    doc = upgrade_names(doc)
+    return {**doc, "runs": [with_judgement(r) for r in doc.get("runs", [])]}
+
+
 # One step per schema version (asv's update_to_N): step N brings a document of version N - 1 to N;
 # versions 1 -> 3 needed no step (their new keys are optional).
-_MIGRATIONS = {4: _update_to_4}
+_MIGRATIONS = {4: _update_to_4, 5: _update_to_5}
 
 
 def migrate(doc: dict) -> dict:

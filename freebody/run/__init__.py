@@ -7,12 +7,12 @@ share truths (:mod:`.suite`, :mod:`.executor`, :mod:`.worker`, :mod:`.sharedcach
 self-checks of ``freebody conventions``.
 """
 from .execute import execute
-from .judge import SCHEME_CANDIDATES, TruthCache, compare_with_engine, finish, identify, scheme_candidates
+from .judge import SCHEME_CANDIDATES, TruthCache, compare_with_engine, identify, judge_run, scheme_candidates
 from .matrix import (engine_integrators, engine_precisions, expand, select_engines, select_integrators,
                      select_precisions)
 from .records import PRECISIONS, STATUSES, RunOutput, RunResult, RunSpec, Simulated, Status
 
-__all__ = ["execute", "SCHEME_CANDIDATES", "TruthCache", "compare_with_engine", "finish", "identify",
+__all__ = ["execute", "SCHEME_CANDIDATES", "TruthCache", "compare_with_engine", "identify", "judge_run",
            "scheme_candidates", "engine_integrators", "engine_precisions", "expand", "select_engines",
            "select_integrators", "select_precisions", "PRECISIONS", "STATUSES", "RunOutput", "RunResult",
            "RunSpec", "Simulated", "Status"]

@@ -1,5 +1,7 @@
 """Executing one run: load the engine's adapter, build, step (the engine's output captured), and
-hand what it produced to :func:`~freebody.run.judge.finish`.  Never raises for an engine's failure:
+hand what it produced to :func:`~freebody.run.judge.judge_run` (a long run: chunk by chunk to a
+:class:`~freebody.run.judge.RunJudge`).  Judging, the records and their judgement are
+:mod:`freebody.run.judge`'s; this module only steps engines.  Never raises for an engine's failure:
 that is the run's status, including an engine that raises SystemExit (calls ``sys.exit``) or
 another BaseException; only KeyboardInterrupt goes through (Ctrl-C still interrupts)."""
 from __future__ import annotations
@@ -14,9 +16,9 @@ from ..adapters.capture import capture_output
 from .. import tolerances as tol
 from ..reference_impl.truth import truth_chunks
 from ..results.document import auto_every
-from .judge import RunJudge, TruthCache, _Identification, _VsEngine, finish, stepped_engine_pieces, stepped_map_pieces
-from .metrics import truth_scales
-from .records import RunOutput, RunResult, RunSpec, Simulated, Status, _describe, _identity, _no_trajectory
+from .judge import (Identification, RunJudge, TruthCache, VsEngine, describe_error, judge_run, no_samples, recorded,
+                    run_identity, stepped_engine_pieces, stepped_map_pieces, whole_truth_scales)
+from .records import RunOutput, RunResult, RunSpec, Simulated, Status
 
 
 def execute(spec: RunSpec, cache: TruthCache | None = None, identify_scheme: bool = True,
@@ -65,18 +67,18 @@ def _adapter_class(engine: str):
 def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool) -> RunOutput:
     cache = cache or TruthCache()
     pb = spec.problem
-    base = _identity(spec)
+    base = run_identity(spec)
     t0 = time.perf_counter()
     if isinstance(cls, EngineMissing):
-        return _no_trajectory(base, Status.SKIPPED, str(cls), 0.0)
+        return no_samples(base, Status.SKIPPED, str(cls), 0.0)
     if isinstance(cls, BaseException):  # a broken install is a failure, never a skip
-        return _no_trajectory(base, Status.FAILED, f"importing the {spec.engine} adapter failed: {_describe(cls)}",
+        return no_samples(base, Status.FAILED, f"importing the {spec.engine} adapter failed: {describe_error(cls)}",
                               time.perf_counter() - t0)
     version = settings = adapter = None
     try:
         version = cls.engine_version()
         if why := unsupported_version(cls, version):
-            return _no_trajectory(base, Status.SKIPPED, why, 0.0, version)
+            return no_samples(base, Status.SKIPPED, why, 0.0, version)
         adapter = cls(pb, spec.dt, spec.integrator, spec.precision)
         settings = adapter.settings
         try:
@@ -91,8 +93,8 @@ def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool
     except KeyboardInterrupt:
         raise
     except BaseException as e:  # an engine calling sys.exit() fails its run, not freebody
-        return _no_trajectory(base, Status.FAILED, _describe(e), time.perf_counter() - t0, version, settings)
-    return finish(spec, sim, cache, identify_scheme, compare_with=cls.compare_with)
+        return no_samples(base, Status.FAILED, describe_error(e), time.perf_counter() - t0, version, settings)
+    return judge_run(spec, sim, cache, identify_scheme, compare_with=cls.compare_with)
 
 
 def chunk_steps(steps: int, min_steps: int | None = None, chunk: int | None = None) -> int | None:
@@ -104,7 +106,7 @@ def chunk_steps(steps: int, min_steps: int | None = None, chunk: int | None = No
 
 def _execute_chunked(spec: RunSpec, cls, identify_scheme: bool, save_every: int | None,
                      chunk: int | None = None) -> RunOutput:
-    """:func:`_execute` and :func:`~freebody.run.judge.finish` of a long run, chunk by chunk: a
+    """:func:`_execute` and :func:`~freebody.run.judge.judge_run` of a long run, chunk by chunk: a
     first pass over the truth for its maxima over the run (:class:`~freebody.run.metrics.Scales`),
     then the engine stepped with ``Adapter.chunks`` and each chunk judged (:class:`RunJudge`)
     against the truth's chunk (:func:`~freebody.reference_impl.truth.truth_chunks`), the reference
@@ -124,34 +126,32 @@ def _run_chunked(spec: RunSpec, cls, identify_scheme: bool, every: int, chunk: i
     """(RunOutput, samples judged) of one chunked pass (see :func:`_execute_chunked`)."""
     pb, dt, steps = spec.problem, spec.dt, spec.steps
     chunk = chunk or chunk_steps(steps) or tol.JUDGE_CHUNK_STEPS
-    base = _identity(spec)
+    base = run_identity(spec)
     t0 = time.perf_counter()
     if isinstance(cls, EngineMissing):
-        return _no_trajectory(base, Status.SKIPPED, str(cls), 0.0), None
+        return no_samples(base, Status.SKIPPED, str(cls), 0.0), None
     version = settings = adapter = None
     try:
         version = cls.engine_version()
         if why := unsupported_version(cls, version):
-            return _no_trajectory(base, Status.SKIPPED, why, 0.0, version), None
+            return no_samples(base, Status.SKIPPED, why, 0.0, version), None
         adapter = cls(pb, dt, spec.integrator, spec.precision)
         settings = adapter.settings
     except KeyboardInterrupt:
         raise
     except BaseException as e:  # an engine calling sys.exit() fails its run, not freebody
-        return _no_trajectory(base, Status.FAILED, _describe(e), time.perf_counter() - t0, version, settings), None
+        return no_samples(base, Status.FAILED, describe_error(e), time.perf_counter() - t0, version, settings), None
     stepping = time.perf_counter() - t0
-    base = _identity(spec, settings)
+    base = run_identity(spec, settings)
     try:
-        scales = None
-        for piece in truth_chunks(pb, dt, steps, chunk):
-            scales = truth_scales(pb, piece).merged(scales)
+        scales = whole_truth_scales(spec, chunk)
     except Exception as e:
         adapter.close()
-        return _no_trajectory(base, Status.FAILED, f"truth oracle failed: {_describe(e)}", stepping, version,
+        return no_samples(base, Status.FAILED, f"truth oracle failed: {describe_error(e)}", stepping, version,
                               settings), None
     scheme = identify_scheme and not spec.is_reference
-    judge = RunJudge(spec, scales, _Identification(spec, stepped_map_pieces(spec, chunk)) if scheme else None,
-                     _VsEngine(spec, cls.compare_with, stepped_engine_pieces(spec, chunk))
+    judge = RunJudge(spec, scales, Identification(spec, stepped_map_pieces(spec, chunk)) if scheme else None,
+                     VsEngine(spec, cls.compare_with, stepped_engine_pieces(spec, chunk))
                      if scheme and cls.compare_with else None, every=every)
     truth = truth_chunks(pb, dt, steps, chunk)
     pieces = adapter.chunks(steps, chunk)
@@ -172,12 +172,11 @@ def _run_chunked(spec: RunSpec, cls, identify_scheme: bool, every: int, chunk: i
         if e.trajectory is not None and len(e.trajectory):
             judge.feed(e.trajectory, next(truth), diverged_at)
         elif judge.n:  # no samples of its own: the divergence after the last one
-            judge.engine_diverged, judge.engine_t = judge.n, float(e.t)
-            judge.before[judge.n] = judge.stats
+            judge.engine_stopped(e.t)
     except KeyboardInterrupt:
         raise
     except BaseException as e:  # an engine calling sys.exit() fails its run, not freebody
-        return _no_trajectory(base, Status.FAILED, _describe(e), time.perf_counter() - t0, version,
+        return no_samples(base, Status.FAILED, describe_error(e), time.perf_counter() - t0, version,
                               adapter.settings), None
     finally:
         adapter.close()
@@ -185,9 +184,9 @@ def _run_chunked(spec: RunSpec, cls, identify_scheme: bool, every: int, chunk: i
     compile_time = adapter.compile_time_s
     if judge.n == 0:
         status = Status.OK if diverged_at is None else Status.DIVERGED
-        return _no_trajectory(base, status, reason, stepping, version, settings, diverged_at), None
+        return no_samples(base, status, reason, stepping, version, settings, diverged_at), None
     fields = judge.outcome(reason)
-    result = RunResult(**_identity(spec, settings), **fields, wall_time_s=stepping, engine_version=version,
-                       engine_settings=settings or {}, compile_time_s=compile_time)
+    result = recorded(RunResult(**run_identity(spec, settings), **fields, wall_time_s=stepping,
+                                engine_version=version, engine_settings=settings or {}, compile_time_s=compile_time))
     tr, tr_truth, series, idx = judge.saved()
     return RunOutput(result, tr, tr_truth, series, saved_index=idx), judge.n

@@ -148,7 +148,7 @@ class Worker:
         self.python = python
         environ = os.environ
         if python is not None:  # nothing of this environment on its sys.path: -P, no PYTHONPATH
-            from ..environments import clean_environ
+            from ..envs.build import clean_environ
 
             options, environ = {**options, "sys_path": None}, clean_environ()
         try:
@@ -216,7 +216,7 @@ class LocalPool:
     registry : the adapter registry the workers use (default: this process's,
         :data:`freebody.adapters.base.ENGINES`, so an engine registered at run time works there too).
     interpreters : engine -> the Python interpreter of its isolated environment
-        (:mod:`.engine_envs`): its runs go only to workers running that interpreter; the others to
+        (:mod:`freebody.envs.engines`): its runs go only to workers running that interpreter; the others to
         workers of this one.  With several interpreters the ``jobs`` workers are shared: an idle
         worker of an interpreter with no run ready is stopped when another has runs ready and no worker.
     """

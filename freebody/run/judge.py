@@ -1,16 +1,28 @@
-"""Judging a simulated run: the truth, divergence (the one place a run's status is decided),
-metrics, scheme identification against the reference maps, and the comparison of a ported engine
-with its original.  :func:`finish` serves runs stepped one by one and runs stepped as a batch."""
+"""Judging a simulated run, top-down: :func:`judge_run` takes what an engine produced
+(:class:`~freebody.run.records.Simulated`) to its recorded result; :class:`RunJudge` feeds the
+samples (whole, or chunk by chunk for a long run) to the computations on arrays of
+:mod:`freebody.run.metrics` (error series, running maxima, divergence, state growth) and to scheme
+identification (:class:`Identification`) and the comparison of a ported engine with its original
+(:class:`VsEngine`); :func:`recorded` adds the facts the findings present
+(:func:`freebody.results.judgement.run_judgement`).  The one place a run's status is decided, and
+the one place its judgement is made: reports present it, they do not re-judge.
+
+Also the builders of a run's records: :func:`run_identity` (which run, which experiment),
+:func:`no_samples` (a run without samples: skipped, failed, stopped at once),
+:func:`describe_error` (an exception as a run's message)."""
 from __future__ import annotations
 
 import dataclasses
 import itertools
+import traceback
 from typing import Callable, Iterator
 
 import numpy as np
 
 from .. import tolerances as tol
 from ..adapters.base import EngineDiverged, load_adapter
+from ..adapters.capture import cap_line
+from ..numbers import finite_or_none
 from ..reference_impl import integrators as _maps
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.engine_maps import ENGINE_MAPS, map_load_sampling
@@ -19,14 +31,15 @@ from ..reference_impl.integrators import INTEGRATORS
 from ..reference_impl.integrators import simulate as reference_simulate
 from ..reference_impl.problem import InitialState, Problem
 from ..reference_impl.rotations import geodesic_angle
-from ..reference_impl.truth import truth_trajectory
+from ..reference_impl.truth import truth_chunks, truth_kind, truth_trajectory
 from ..results.document import prefix_end, select_saved
 from ..results import identification  # the verdicts' names, read by every reader
+from ..results.judgement import run_judgement
+from .experiment import experiment
 from .metrics import (DIVERGENCE_KINDS, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, ROTATION_ORTHONORMALITY_ERROR_MAX,
                       STAT_ARRAYS, Scales, Series, SeriesStats, divergence_bounds, divergence_decision,
                       divergence_firsts, series, truth_scales, GrowthStats)
-from .records import (RunOutput, RunResult, RunSpec, Simulated, Status, _clean, _describe, _identity, _no_trajectory,
-                      identification_sampling)
+from .records import RunOutput, RunResult, RunSpec, Simulated, Status
 
 # The engines' maps: what an engine integrator plausibly implements (rk4 only for an RK4 of its
 # own); the self-checks bound an engine by these (:func:`engine_schemes`).
@@ -40,97 +53,99 @@ SCHEME_CANDIDATES = (*ENGINE_SCHEMES, "rk4", *ENGINE_MAPS,
                      *(n for n in INTEGRATORS if n not in (*ENGINE_SCHEMES, "rk4")))
 
 
-class TruthCache:
-    """Truth trajectories per (case, dt, steps), computed once per process."""
-
-    def __init__(self):
-        self._cache: dict = {}
-
-    def get(self, problem: Problem, dt: float, steps: int) -> Trajectory:
-        key = (id(problem), problem.name, dt, steps)
-        if key not in self._cache:
-            self._cache[key] = truth_trajectory(problem, dt, steps)
-        return self._cache[key]
-
-    def engine_run(self, problem: Problem, engine: str, integrator: str, dt: float, steps: int) -> Trajectory:
-        """Another engine's float64 trajectory of the same case (for ported engines' comparison)."""
-        key = (id(problem), problem.name, dt, steps, engine, integrator)
-        if key not in self._cache:
-            adapter = load_adapter(engine)(problem, dt, integrator)
-            try:
-                self._cache[key] = adapter.simulate(steps)
-            finally:
-                adapter.close()
-        return self._cache[key]
-
-    def reference(self, problem: Problem, integrator: str, dt: float, steps: int,
-                  load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
-        load_sampling = map_load_sampling(problem, integrator, load_sampling)
-        key = (id(problem), problem.name, dt, steps, integrator, load_sampling)
-        if key not in self._cache:
-            self._cache[key] = reference_simulate(problem, integrator, dt, steps, load_sampling=load_sampling)
-        return self._cache[key]
-
-    def orientation(self, problem: Problem, integrator: str, dt: float, steps: int,
-                    load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
-        """The reference map's orientations q (steps + 1, 4), wxyz: all that identification
-        compares (the rest of the map's trajectory is not kept); ``load_sampling``: the variant of
-        a multi-stage engine map (the run's engine's rule, :func:`map_load_sampling`)."""
-        load_sampling = map_load_sampling(problem, integrator, load_sampling)
-        key = (id(problem), problem.name, dt, steps, integrator, load_sampling)
-        if key in self._cache:  # the whole map is here already
-            return self._cache[key].quaternion_wxyz
-        if key + ("q",) not in self._cache:
-            self._cache[key + ("q",)] = self._simulate_map(problem, integrator, dt, steps,
-                                                           load_sampling).quaternion_wxyz
-        return self._cache[key + ("q",)]
-
-    def roundoff(self, problem: Problem, integrator: str, dt: float, steps: int,
-                 precision: str = "float64", load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
-        """The case's round-off amplification for this map: :func:`roundoff_spread` (N,) rad."""
-        load_sampling = map_load_sampling(problem, integrator, load_sampling)
-        key = (id(problem), problem.name, dt, steps, integrator, "roundoff", precision, load_sampling)
-        if key not in self._cache:
-            q = self.orientation(problem, integrator, dt, steps, load_sampling)
-            self._cache[key] = roundoff_spread(problem, integrator, dt, steps, precision, q,
-                                               load_sampling=load_sampling)
-        return self._cache[key]
-
-    def _simulate_map(self, problem: Problem, integrator: str, dt: float, steps: int,
-                      load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
-        return reference_simulate(problem, integrator, dt, steps, load_sampling=load_sampling)
-
-
-def finish(spec: RunSpec, sim: Simulated, cache: TruthCache, identify_scheme: bool = True,
-           compare_with: str | None = None) -> RunOutput:
+def judge_run(spec: RunSpec, sim: Simulated, cache: "TruthCache", identify_scheme: bool = True,
+              compare_with: str | None = None) -> RunOutput:
     """Judge a simulated run: truth, divergence (the one place it is decided), metrics, scheme
-    identification and the comparison with a ported engine's original.  Used for runs stepped one
-    by one (:func:`execute`) and for runs stepped as a batch (``freebody sweep --engine mjx``).
+    identification, the comparison with a ported engine's original, and the facts of its
+    findings (:func:`recorded`).  Used for runs stepped one by one
+    (:func:`freebody.run.execute.execute`) and for runs stepped as a batch (``freebody sweep
+    --engine mjx``).
 
     The run is judged as one chunk by :class:`RunJudge`, which a long run goes through chunk by
     chunk (:func:`freebody.run.execute.execute`): the same rules, the same numbers."""
     pb = spec.problem
-    base = _identity(spec, sim.settings)
+    base = run_identity(spec, sim.settings)
     trajectory, diverged_at, version, settings = sim.trajectory, sim.diverged_at, sim.version, sim.settings
-    wall, compile_time = sim.wall_time_s, sim.compile_time_s
     status, message = (Status.OK, "") if diverged_at is None else (Status.DIVERGED, sim.reason)
     try:
         truth = cache.get(pb, spec.dt, spec.steps)
     except Exception as e:
-        return _no_trajectory(base, Status.FAILED, f"truth oracle failed: {_describe(e)}", wall, version,
-                              settings)
+        return no_samples(base, Status.FAILED, f"truth oracle failed: {describe_error(e)}", sim.wall_time_s,
+                          version, settings)
     if trajectory is None or len(trajectory) == 0:
-        return _no_trajectory(base, status, message, wall, version, settings, diverged_at)
+        return no_samples(base, status, message, sim.wall_time_s, version, settings, diverged_at)
     whole_truth, truth = truth, truth.head(len(trajectory))
     scheme = identify_scheme and not spec.is_reference
     judge = RunJudge(spec, truth_scales(pb, truth),
-                     _Identification(spec, cached_map_pieces(spec, cache)) if scheme else None,
-                     _VsEngine(spec, compare_with, cached_engine_pieces(spec, cache)) if scheme and compare_with else None)
+                     Identification(spec, cached_map_pieces(spec, cache)) if scheme else None,
+                     VsEngine(spec, compare_with, cached_engine_pieces(spec, cache)) if scheme and compare_with else None)
     judge.feed(trajectory, truth, diverged_at)
-    out = judge.outcome(sim.reason)
-    result = RunResult(**base, **out, wall_time_s=wall, engine_version=version, engine_settings=settings or {},
-                       compile_time_s=compile_time)
+    result = recorded(RunResult(**base, **judge.outcome(sim.reason), wall_time_s=sim.wall_time_s,
+                                engine_version=version, engine_settings=settings or {},
+                                compile_time_s=sim.compile_time_s))
     return RunOutput(result, trajectory, whole_truth, judge.whole_series)
+
+
+def recorded(result: RunResult) -> RunResult:
+    """The run's result with its ``judgement``: the facts its findings present (blow-up, rotation
+    cap, the map it reproduces or comes closest to, saturation, its formal order...), computed
+    here once from its judged fields by :func:`freebody.results.judgement.run_judgement` (which
+    the schema-5 migration applies to older documents)."""
+    return dataclasses.replace(result, judgement=run_judgement(result.to_json()))
+
+
+def no_samples(base: dict, status: Status, message: str, wall: float, version: str | None = None,
+               settings: dict | None = None, diverged_at: float | None = None) -> RunOutput:
+    """The output of a run without samples (skipped, failed, or stopped before its first sample):
+    ``base`` is its :func:`run_identity`, the rest its fields; no metrics, no arrays."""
+    result = RunResult(**base, status=status, message=message, metrics={}, final_state=None,
+                       wall_time_s=wall, engine_version=version, engine_settings=settings or {},
+                       diverged_at_s=diverged_at)
+    return RunOutput(recorded(result), None, None, None)
+
+
+def run_identity(spec: RunSpec, settings: dict | None = None) -> dict:
+    """The fields of a RunResult that say which run it is, and which experiment (``settings``:
+    the adapter's, None when the engine was not built)."""
+    return dict(case=spec.problem.name, engine=spec.engine, integrator=spec.integrator,
+                precision=spec.precision, dt=spec.dt, steps=spec.steps, truth=truth_kind(spec.problem),
+                experiment=experiment(spec.problem, spec.dt, spec.steps, settings),
+                load_sampling=run_load_sampling(spec) if settings is not None else None)
+
+
+def describe_error(e: BaseException) -> str:
+    """An exception as a run's message: 'Type: first line (at file.py:line)', the line capped."""
+    msg = str(e).strip().splitlines()
+    where = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
+    loc = f" (at {where.filename.rsplit('/', 1)[-1]}:{where.lineno})" if where else ""
+    return f"{type(e).__name__}: {cap_line(msg[0]) if msg else ''}{loc}"  # a 50 MB message: cut
+
+
+def whole_truth_scales(spec: RunSpec, chunk: int) -> Scales:
+    """The truth's maxima over a run judged in chunks (:class:`~freebody.run.metrics.Scales`),
+    from a first pass over its truth chunk by chunk (nothing of the whole truth is kept)."""
+    scales = None
+    for piece in truth_chunks(spec.problem, spec.dt, spec.steps, chunk):
+        scales = truth_scales(spec.problem, piece).merged(scales)
+    return scales
+
+
+def run_load_sampling(spec: RunSpec) -> str | None:
+    """The run's load sampling as its engine's adapter declares it for this case
+    (``Adapter.run_load_sampling``), or None: the case has no loads, or the adapter cannot be
+    loaded."""
+    if not spec.problem.loads:
+        return None
+    try:  # the engine's module is imported already (it ran)
+        return load_adapter(spec.engine).run_load_sampling(spec.problem)
+    except Exception:
+        return None
+
+
+def identification_sampling(spec: RunSpec) -> str:
+    """The variant of the multi-stage engine maps a run is compared with: its engine's load
+    sampling (:func:`run_load_sampling`), per-stage when there is none."""
+    return run_load_sampling(spec) or LOAD_SAMPLING_PER_STAGE
 
 
 def step_rotation_cap(spec: RunSpec) -> float | None:
@@ -146,23 +161,23 @@ def step_rotation_cap(spec: RunSpec) -> float | None:
 
 
 class RunJudge:
-    """Judges one run from its samples, delivered whole (:func:`finish`: one :meth:`feed`) or in
+    """Judges one run from its samples, delivered whole (:func:`judge_run`: one :meth:`feed`) or in
     consecutive chunks (a long run, :func:`freebody.run.execute.execute`), with the same rules and
     the same numbers either way: the error series of each chunk scaled by the truth's maxima over
     the whole run (``scales``, :class:`~freebody.run.metrics.Scales`), running maxima and finals
     (:class:`~freebody.run.metrics.SeriesStats`), the first sample of each kind of divergence
     (:func:`~freebody.run.metrics.divergence_decision` decides at the end), the statistics of the
     samples before each such sample (the ``*_before_divergence`` metrics and the saved samples of a
-    diverged run), scheme identification (:class:`_Identification`) and the comparison with a
-    ported engine's original (:class:`_VsEngine`), both fed only while no divergence is found.
+    diverged run), scheme identification (:class:`Identification`) and the comparison with a
+    ported engine's original (:class:`VsEngine`), both fed only while no divergence is found.
 
     every : keep the samples a trajectory file saves (:func:`~freebody.results.document.select_saved`
         with stride ``every``) as the chunks go by (a long run keeps no more); None: keep none
         (the caller has the whole run).
     """
 
-    def __init__(self, spec: RunSpec, scales: Scales, identification: "_Identification | None" = None,
-                 vs_engine: "_VsEngine | None" = None, every: int | None = None):
+    def __init__(self, spec: RunSpec, scales: Scales, identification: "Identification | None" = None,
+                 vs_engine: "VsEngine | None" = None, every: int | None = None):
         self.spec, self.pb, self.scales = spec, spec.problem, scales
         self.bounds = divergence_bounds(scales)
         self.identification, self.vs_engine = identification, vs_engine
@@ -230,6 +245,12 @@ class RunJudge:
         self.n = k0 + m
         self.last = tr.take(np.array([m - 1]))
 
+    def engine_stopped(self, t: float) -> None:
+        """The engine reported a blow-up at ``t`` after the samples fed, with no sample of its own:
+        the divergence is at the next sample, the statistics before it those of every sample fed."""
+        self.engine_diverged, self.engine_t = self.n, float(t)
+        self.before[self.n] = self.stats
+
     def diverged(self) -> tuple[int, float, str] | None:
         """(index, t, reason) of the run's divergence found by the harness, or None."""
         found = divergence_decision(self.firsts, self.bounds)
@@ -261,7 +282,7 @@ class RunJudge:
                 head = self.before[d].maxima["orientation_error"].max
                 metrics[ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE] = head
         ok = status == Status.OK
-        return dict(status=status, message=message, metrics=_clean(metrics),
+        return dict(status=status, message=message, metrics={k: finite_or_none(v) for k, v in metrics.items()},
                     final_state=self.last.state(0).as_dict() if ok else None,
                     matches_reference=self.identification.result() if ok and self.identification else None,
                     vs_engine=self.vs_engine.result() if ok and self.vs_engine else None,
@@ -281,6 +302,67 @@ class RunJudge:
         at = first[np.searchsorted(g[first], idx)]
         ser = Series(tr.t[at], *(v[at] for v in values), *self._rows[0][4])
         return tr.take(at), truth.take(at), ser, idx
+
+
+class TruthCache:
+    """Truth trajectories per (case, dt, steps), computed once per process."""
+
+    def __init__(self):
+        self._cache: dict = {}
+
+    def get(self, problem: Problem, dt: float, steps: int) -> Trajectory:
+        key = (id(problem), problem.name, dt, steps)
+        if key not in self._cache:
+            self._cache[key] = truth_trajectory(problem, dt, steps)
+        return self._cache[key]
+
+    def engine_run(self, problem: Problem, engine: str, integrator: str, dt: float, steps: int) -> Trajectory:
+        """Another engine's float64 trajectory of the same case (for ported engines' comparison)."""
+        key = (id(problem), problem.name, dt, steps, engine, integrator)
+        if key not in self._cache:
+            adapter = load_adapter(engine)(problem, dt, integrator)
+            try:
+                self._cache[key] = adapter.simulate(steps)
+            finally:
+                adapter.close()
+        return self._cache[key]
+
+    def reference(self, problem: Problem, integrator: str, dt: float, steps: int,
+                  load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
+        load_sampling = map_load_sampling(problem, integrator, load_sampling)
+        key = (id(problem), problem.name, dt, steps, integrator, load_sampling)
+        if key not in self._cache:
+            self._cache[key] = reference_simulate(problem, integrator, dt, steps, load_sampling=load_sampling)
+        return self._cache[key]
+
+    def orientation(self, problem: Problem, integrator: str, dt: float, steps: int,
+                    load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
+        """The reference map's orientations q (steps + 1, 4), wxyz: all that identification
+        compares (the rest of the map's trajectory is not kept); ``load_sampling``: the variant of
+        a multi-stage engine map (the run's engine's rule, :func:`map_load_sampling`)."""
+        load_sampling = map_load_sampling(problem, integrator, load_sampling)
+        key = (id(problem), problem.name, dt, steps, integrator, load_sampling)
+        if key in self._cache:  # the whole map is here already
+            return self._cache[key].quaternion_wxyz
+        if key + ("q",) not in self._cache:
+            self._cache[key + ("q",)] = self._simulate_map(problem, integrator, dt, steps,
+                                                           load_sampling).quaternion_wxyz
+        return self._cache[key + ("q",)]
+
+    def roundoff(self, problem: Problem, integrator: str, dt: float, steps: int,
+                 precision: str = "float64", load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
+        """The case's round-off amplification for this map: :func:`roundoff_spread` (N,) rad."""
+        load_sampling = map_load_sampling(problem, integrator, load_sampling)
+        key = (id(problem), problem.name, dt, steps, integrator, "roundoff", precision, load_sampling)
+        if key not in self._cache:
+            q = self.orientation(problem, integrator, dt, steps, load_sampling)
+            self._cache[key] = roundoff_spread(problem, integrator, dt, steps, precision, q,
+                                               load_sampling=load_sampling)
+        return self._cache[key]
+
+    def _simulate_map(self, problem: Problem, integrator: str, dt: float, steps: int,
+                      load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
+        return reference_simulate(problem, integrator, dt, steps, load_sampling=load_sampling)
 
 
 def cached_map_pieces(spec: RunSpec, cache: TruthCache) -> Callable[[str], Iterator]:
@@ -332,7 +414,7 @@ def stepped_engine_pieces(spec: RunSpec, chunk_steps: int) -> Callable[[str, str
     return pieces
 
 
-class _VsEngine:
+class VsEngine:
     """The comparison of a run with another engine's float64 run of the same integrator and dt,
     chunk by chunk (see :func:`compare_with_engine`)."""
 
@@ -352,7 +434,7 @@ class _VsEngine:
         except KeyboardInterrupt:
             raise
         except BaseException as e:  # the other engine's sys.exit() included
-            self.message = f"{other} could not run: {_describe(e)}"
+            self.message = f"{other} could not run: {describe_error(e)}"
 
     def update(self, q: np.ndarray) -> None:
         if self.message is not None:
@@ -365,7 +447,7 @@ class _VsEngine:
         except KeyboardInterrupt:
             raise
         except BaseException as e:  # the other engine's sys.exit() included
-            self.message = f"{self.other} could not run: {_describe(e)}"
+            self.message = f"{self.other} could not run: {describe_error(e)}"
             return
         d = geodesic_angle(ref.quaternion_wxyz, q)
         self.finite = self.finite and bool(np.all(np.isfinite(d)))
@@ -385,7 +467,7 @@ def compare_with_engine(pb: Problem, trajectory: Trajectory, spec: RunSpec, othe
                         cache: TruthCache) -> dict:
     """How far this run is from ``other`` engine's float64 run of the same integrator and dt (rad):
     e.g. MJX against C MuJoCo.  A missing or failing other engine is said, not raised."""
-    vs = _VsEngine(spec, other, cached_engine_pieces(dataclasses.replace(spec, problem=pb), cache))
+    vs = VsEngine(spec, other, cached_engine_pieces(dataclasses.replace(spec, problem=pb), cache))
     vs.update(trajectory.quaternion_wxyz)
     return vs.result()
 
@@ -458,7 +540,7 @@ def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precisi
     """(steps + 1,) rad: the orientation of the map ``integrator`` (its run's q_ref (steps + 1, 4))
     against the same map from each of the :func:`perturbed_start` of :data:`ULP_SIGN_PATTERNS`
     (same dt, same load steps), the largest sample by sample.  A sample where either is not finite
-    is inf (a perturbed copy blew up: the map can identify nothing there, see :class:`_Identification`)."""
+    is inf (a perturbed copy blew up: the map can identify nothing there, see :class:`Identification`)."""
     spread = np.zeros(len(q_ref))
     for signs in ULP_SIGN_PATTERNS:
         pb_u = perturbed_start(pb, precision, signs)
@@ -562,15 +644,15 @@ def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCac
     ratios : name -> max over samples (below the cap) of difference / level (<= 1: within), or None.
     rule : the rule in words.
 
-    The run is taken in as one chunk of :class:`_Identification` (a long run: chunk by chunk).
+    The run is taken in as one chunk of :class:`Identification` (a long run: chunk by chunk).
     """
-    ident = _Identification(dataclasses.replace(spec, problem=pb), cached_map_pieces(
+    ident = Identification(dataclasses.replace(spec, problem=pb), cached_map_pieces(
         dataclasses.replace(spec, problem=pb), cache))
     ident.update(trajectory.quaternion_wxyz)
     return ident.result()
 
 
-class _Identification:
+class Identification:
     """Scheme identification (:func:`identify`) of a run taken in chunk by chunk: per candidate
     map, the running maxima of its difference and of the difference over its round-off level
     (on the samples below the cap), the level's running base, whether it reached the cap (undecidable), and for each pair of maps that

@@ -14,13 +14,13 @@ from ..adapters.capture import capture_output
 from ..errors import InputError
 from ..input.casefile import check_run_settings
 from ..reference_impl.problem import Problem
-from . import engine_envs
+from ..envs import engines as engine_envs
 from .records import PRECISIONS, RunSpec
 
 
 def select_engines(requested: list[str] | None, all_engines: bool = False) -> list[str]:
     """Requested engines (validated, case-insensitive; an engine may be named with a version,
-    ``mujoco==3.1.6``, run in an isolated environment: :mod:`.engine_envs`), or the default set
+    ``mujoco==3.1.6``, run in an isolated environment: :mod:`freebody.envs.engines`), or the default set
     (registry entries with ``default``; every registered engine with ``all_engines``)."""
     if not requested:
         return engine_names() if all_engines else default_engine_names()

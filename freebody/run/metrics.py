@@ -374,6 +374,3 @@ def _first(mask: np.ndarray) -> int | None:
     idx = np.flatnonzero(mask)
     return int(idx[0]) if idx.size else None
 
-
-def _max(a: np.ndarray) -> float | None:
-    return finite_or_none(np.max(a)) if len(a) else None

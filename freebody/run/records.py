@@ -2,6 +2,9 @@
 (:class:`Simulated`), and the judged outcome (:class:`RunResult`, serialised as a ``runs`` entry of
 results.json, and :class:`RunOutput` with its arrays).
 
+Plain data and its serialisation: building these records (a run's identity, its judgement) is
+:mod:`freebody.run.judge`'s.
+
 A run's status is data, a :class:`Status` (a ``StrEnum``: each member is its string, so it
 compares equal to, and serialises as, ``"ok"`` etc.; :data:`STATUSES` lists the plain strings):
 - ``ok``: the engine ran to the end and stayed within the case's bounds;
@@ -12,20 +15,14 @@ compares equal to, and serialises as, ``"ok"`` etc.; :data:`STATUSES` lists the 
 """
 from __future__ import annotations
 
-import traceback
 from dataclasses import dataclass, field
 from enum import StrEnum
 
 import numpy as np
 
 from ..adapters.base import REFERENCE_ENGINE
-from ..adapters.capture import cap_line
-from ..numbers import finite_or_none
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.problem import Problem
-from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
-from ..reference_impl.truth import truth_kind
-from .experiment import experiment
 from .metrics import Series
 
 
@@ -101,6 +98,9 @@ class RunResult:
     # "per-stage" or "per-step", the adapter's declared rule; Adapter.run_load_sampling); None when
     # the case has no loads or the engine was not built.  Optional: older results lack it.
     load_sampling: str | None = None
+    # the facts the findings and report tables present (freebody.results.judgement.run_judgement,
+    # computed once when the run is recorded: freebody.run.judge.recorded); None only before that
+    judgement: dict | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "status", Status(self.status))  # ValueError for a status not in the set
@@ -143,49 +143,3 @@ class Simulated:
     settings: dict | None
     wall_time_s: float
     compile_time_s: float | None = None
-
-
-def _identity(spec: RunSpec, settings: dict | None = None) -> dict:
-    """The fields of a RunResult that say which run it is, and which experiment (``settings``:
-    the adapter's, None when the engine was not built)."""
-    return dict(case=spec.problem.name, engine=spec.engine, integrator=spec.integrator,
-                precision=spec.precision, dt=spec.dt, steps=spec.steps, truth=truth_kind(spec.problem),
-                experiment=experiment(spec.problem, spec.dt, spec.steps, settings),
-                load_sampling=run_load_sampling(spec) if settings is not None else None)
-
-
-def run_load_sampling(spec: RunSpec) -> str | None:
-    """The run's load sampling as its engine's adapter declares it for this case
-    (``Adapter.run_load_sampling``), or None: the case has no loads, or the adapter cannot be
-    loaded."""
-    if not spec.problem.loads:
-        return None
-    from ..adapters.base import load_adapter  # the engine's module is imported already (it ran)
-    try:
-        return load_adapter(spec.engine).run_load_sampling(spec.problem)
-    except Exception:
-        return None
-
-
-def identification_sampling(spec: RunSpec) -> str:
-    """The variant of the multi-stage engine maps a run is compared with: its engine's load
-    sampling (:func:`run_load_sampling`), per-stage when there is none."""
-    return run_load_sampling(spec) or LOAD_SAMPLING_PER_STAGE
-
-
-def _clean(metrics: dict) -> dict:
-    return {k: finite_or_none(v) for k, v in metrics.items()}
-
-
-def _describe(e: BaseException) -> str:
-    msg = str(e).strip().splitlines()
-    where = traceback.extract_tb(e.__traceback__)[-1] if e.__traceback__ else None
-    loc = f" (at {where.filename.rsplit('/', 1)[-1]}:{where.lineno})" if where else ""
-    return f"{type(e).__name__}: {cap_line(msg[0]) if msg else ''}{loc}"  # a 50 MB message: cut
-
-
-def _no_trajectory(base, status, message, wall, version=None, settings=None, diverged_at=None) -> RunOutput:
-    result = RunResult(**base, status=status, message=message, metrics={}, final_state=None,
-                       wall_time_s=wall, engine_version=version, engine_settings=settings or {},
-                       diverged_at_s=diverged_at)
-    return RunOutput(result, None, None, None)

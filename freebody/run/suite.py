@@ -23,8 +23,8 @@ EXECUTORS = ("local", "dask")
 
 def engine_versions(engines: list[str]) -> dict[str, str | None]:
     """Installed engine versions (None for an engine that is not installed or fails to import);
-    an isolated engine's (:mod:`.engine_envs`) as its environment reports it."""
-    from . import engine_envs
+    an isolated engine's (:mod:`freebody.envs.engines`) as its environment reports it."""
+    from ..envs import engines as engine_envs
 
     out = {}
     for e in engines:
@@ -128,7 +128,7 @@ def check_options(jobs, timeout, save_every, executor: str, scheduler: str | Non
     if executor not in EXECUTORS:
         raise InputError(f"--executor: must be one of {', '.join(EXECUTORS)}, got {executor!r}")
     if executor == "dask" and engines:
-        from .engine_envs import isolated
+        from ..envs.engines import isolated
 
         for e in engines:
             if isolated(e):
@@ -141,7 +141,7 @@ def check_options(jobs, timeout, save_every, executor: str, scheduler: str | Non
         raise InputError("--scheduler: only used with --executor dask")
     if not isolate:
         if engines:
-            from .engine_envs import isolated
+            from ..envs.engines import isolated
 
             for e in engines:
                 if isolated(e):
@@ -231,7 +231,7 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
     elif not isolate:
         run_serial(tasks, on_done)
     else:
-        from .engine_envs import interpreters
+        from ..envs.engines import interpreters
 
         pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines,
                          interpreters=interpreters(engines))

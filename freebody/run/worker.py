@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Callable
 
 from .execute import chunk_steps, execute
-from .judge import finish as judge
+from .judge import judge_run as judge
 
 from .records import RunOutput, RunSpec
 from .sharedcache import GroupTruthCache
@@ -115,11 +115,10 @@ def finish(out: RunOutput, task: RunTask) -> dict:
 
 def failed_payload(spec: RunSpec, message: str, wall_time_s: float) -> dict:
     """The payload of a run that ended without a result of its own (crash, time limit)."""
-    from .records import RunResult, Status, _identity
+    from .judge import no_samples, run_identity
+    from .records import Status
 
-    result = RunResult(**_identity(spec), status=Status.FAILED, message=message, metrics={},
-                       final_state=None, wall_time_s=wall_time_s)
-    return {"result": result}
+    return {"result": no_samples(run_identity(spec), Status.FAILED, message, wall_time_s).result}
 
 
 class Runner:
