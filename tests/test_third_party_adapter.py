@@ -4,7 +4,9 @@ The worked example ``examples/freebody-numpy-euler`` (docs/adapters.md) register
 ``numpy-euler`` through the ``freebody.adapters`` entry point.  It is installed into a TEMPORARY
 environment, never the test environment: a venv made in tmp_path that sees the test
 environment's packages (freebody, numpy) through a ``.pth`` file, so nothing is downloaded.  The
-harness commands (and the adapter conformance suite, on this engine) then run with that venv's
+harness commands, and the adapter conformance suite on this engine (freebody's registry-driven
+module, and the example's own ``tests/test_conformance.py`` run with plain pytest from the
+example's folder, passing, and failing on a deliberately broken copy), then run with that venv's
 python.
 """
 from __future__ import annotations
@@ -12,6 +14,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -86,11 +89,22 @@ def _install_example(site: Path, work: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def venv_python(tmp_path_factory) -> Path:
+def installed(tmp_path_factory) -> tuple[Path, Path]:
+    """(the temporary venv's python, the copy of the example installed into it)."""
     work = tmp_path_factory.mktemp("third_party")
     python, site = _make_venv(work / "venv")
     _install_example(site, work)
-    return python
+    return python, work / "freebody-numpy-euler"
+
+
+@pytest.fixture(scope="module")
+def venv_python(installed) -> Path:
+    return installed[0]
+
+
+@pytest.fixture(scope="module")
+def example_copy(installed) -> Path:
+    return installed[1]
 
 
 def _freebody(python: Path, *args) -> subprocess.CompletedProcess:
@@ -157,9 +171,51 @@ def test_bench(venv_python, tmp_path):
 
 
 def test_conformance_suite(venv_python):
+    """The registry-driven suite of freebody's own tests covers an entry-point engine too."""
     suite = REPO / "tests" / "test_adapter_conformance.py"
-    if not suite.exists():
-        pytest.skip("tests/test_adapter_conformance.py does not exist yet")
-    # exit 5 (nothing collected) would mean the suite does not parametrise over entry-point engines
-    _check(_run([venv_python, "-m", "pytest", suite, "-q", "-k", ENGINE, "-p", "no:cacheprovider"],
+    # exit 5 (nothing collected) would mean the suite does not generate a class for entry-point
+    # engines; -k on the class name (TestNumpyEuler) selects its engine-level checks too
+    _check(_run([venv_python, "-m", "pytest", suite, "-q", "-k", "NumpyEuler", "-p", "no:cacheprovider"],
                 cwd=REPO), "the conformance suite on the third-party engine")
+
+
+# The example's own suite (tests/test_conformance.py): 2 integrators x 11 checks of an offer + 2
+# engine-level checks.  Fewer collected would mean a check lost its parametrisation.
+EXAMPLE_CHECKS = 24
+# How the broken copy is broken: its adapter hands out the engine's scalar-last quaternion as it is
+# (no reordering), a convention error the read-back and push checks catch on both integrators.
+BREAKAGE = ("return (eng.x.copy(), quat_wxyz_from_xyzw(eng.q),", "return (eng.x.copy(), eng.q.copy(),")
+
+
+def _pytest_in(python: Path, folder: Path) -> subprocess.CompletedProcess:
+    """``python -m pytest`` run in ``folder``, as the package's developer would (no freebody
+    checkout, no conftest: the folder's own tests/ only)."""
+    return _run([python, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-o", "addopts="], cwd=folder)
+
+
+def _counts(stdout: str) -> dict[str, int]:
+    """{"passed": n, "failed": n, ...} from pytest's summary line."""
+    return {word: int(n) for n, word in re.findall(r"(\d+) (passed|failed|skipped|error)", stdout)}
+
+
+def test_the_example_runs_the_shipped_suite_from_its_own_folder(venv_python, example_copy):
+    proc = _check(_pytest_in(venv_python, example_copy), "pytest in the example's folder")
+    counts = _counts(proc.stdout)
+    assert counts.get("passed", 0) + counts.get("skipped", 0) == EXAMPLE_CHECKS, proc.stdout[-2000:]
+    assert counts.get("passed", 0) > 0 and "failed" not in counts, proc.stdout[-2000:]
+
+
+def test_the_shipped_suite_fails_a_broken_adapter(venv_python, example_copy, tmp_path):
+    """The same folder with a convention error in the adapter (imported from the folder, which
+    comes first on sys.path): the suite fails, so the pass above means something."""
+    broken = tmp_path / "broken"
+    shutil.copytree(example_copy, broken, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
+    adapter = broken / "freebody_numpy_euler" / "adapter.py"
+    text = adapter.read_text()
+    assert BREAKAGE[0] in text, "the example's read_state changed: update BREAKAGE"
+    adapter.write_text(text.replace(*BREAKAGE))
+    proc = _pytest_in(venv_python, broken)
+    assert proc.returncode == 1, (proc.returncode, proc.stdout[-2000:], proc.stderr[-2000:])
+    counts = _counts(proc.stdout)
+    assert counts.get("failed", 0) >= 2, proc.stdout[-2000:]
+    assert "test_state_read_back_at_t0_is_the_initial_state" in proc.stdout
