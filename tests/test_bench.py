@@ -17,10 +17,9 @@ import pytest
 
 from freebody.adapters.base import engine_names, is_available
 from freebody.cli import main
-from freebody.reference_impl.batched import BATCHED_INTEGRATORS
 from freebody.reference_impl.integrators import INTEGRATORS
 from freebody.tools import bench
-from freebody.tools.bench import (BATCH_SIZES, ENGINE_EQUIVALENT_MAPS, PINNED_SUITE_CASES,
+from freebody.tools.bench import (ENGINE_EQUIVALENT_MAPS, PINNED_SUITE_CASES,
                                   PINNED_SUITE_INTEGRATORS, PINNED_SUITE_RUNS, QUICK_SUITE_CASES,
                                   SCHEMA_VERSION)
 
@@ -125,8 +124,6 @@ def _doc(**over) -> dict:
         "suite_serial_s": 60.0, "suite_parallel_s": 40.0, "suite_speedup": 1.5,
         "suite_trajectories_bytes": 30e6, "suite_report_html_bytes": 3e6,
         "suite_results_json_bytes": 1e6, "suite_note": "...",
-        "mujoco_body_step_s": 2e-6,
-        "reference_body_step_s": {name: {str(B): 5e-8 for B in BATCH_SIZES} for name in BATCHED_INTEGRATORS},
     }
     doc.update(over)
     return doc
@@ -141,8 +138,7 @@ def _status(doc) -> dict[str, list[str]]:
 
 def test_checks_of_a_passing_document():
     assert _status(_doc()) == {"a": ["PASS", "PASS"], "b": ["PASS"], "c": ["PASS"],
-                               "d": ["PASS", "PASS"], "e": ["PASS"], "1": ["PASS"],
-                               "2": ["PASS", "PASS"]}
+                               "d": ["PASS", "PASS"], "e": ["PASS"], "1": ["PASS"]}
 
 
 def test_checks_miss_each_target():
@@ -151,10 +147,9 @@ def test_checks_miss_each_target():
                suite_parallel_s=50.0, suite_trajectories_bytes=60e6, suite_report_html_bytes=5e6,
                rss_bytes=1.2e9)
     doc["engine_step_s"]["mujoco"]["overhead_ratio"] = 1.4
-    doc["reference_body_step_s"]["semi-implicit-explicit-gyro"]["1000"] = 2e-7  # 10x < 20x
     st = _status(doc)
     assert st == {"a": ["MISS", "MISS"], "b": ["MISS"], "c": ["MISS"], "d": ["MISS", "MISS"],
-                  "e": ["MISS"], "1": ["MISS"], "2": ["MISS", "PASS"]}
+                  "e": ["MISS"], "1": ["MISS"]}
     e = next(c for c in bench.checks(doc) if c.key == "e")
     assert e.value == pytest.approx(1200.0) and "100 B a step more" in e.detail  # (1.2e9 - 2e8) / 1e7
 
@@ -178,13 +173,13 @@ def test_quick_or_changed_suite_is_not_judged():
 
 def test_missing_figures_are_not_applicable_with_the_reason():
     doc = _doc()
-    for key in ("reference_map_mujoco_step_s", "long_run_s", "rss_bytes", "mujoco_body_step_s"):
+    for key in ("reference_map_mujoco_step_s", "long_run_s", "rss_bytes"):
         doc.pop(key)
     doc.update(reference_map_mujoco_note="mujoco unavailable: EngineMissing", long_run_note="mujoco not installed",
                rss_note="mujoco not installed", suite_parallel_s=None, suite_serial_s=None,
                suite_note="suite not measured (--no-suite)")
     rows = bench.checks(doc)
-    assert all(c.status == "n/a" for c in rows if c.key in "abcde2"), [(c.key, c.status) for c in rows]
+    assert all(c.status == "n/a" for c in rows if c.key in "abcde"), [(c.key, c.status) for c in rows]
     assert "mujoco unavailable" in rows[0].note
     assert "--no-suite" in next(c for c in rows if c.key == "c").note
     text = bench.format_text(doc)  # renders without the missing figures
@@ -266,18 +261,18 @@ def quick_run(tmp_path_factory):
 @pytest.mark.slow
 def test_quick_bench_reports_every_figure(quick_run):
     doc = quick_run[1]
-    assert doc["schema_version"] == SCHEMA_VERSION == 2
+    assert doc["schema_version"] == SCHEMA_VERSION == 3
     assert doc["quick"] is True
-    # the checks: a (2), b, c, d (2), e, one per measured engine, 2 (2); none failed to measure
+    # the checks: a (2), b, c, d (2), e, one per measured engine; none failed to measure
     keys = [c["key"] for c in doc["checks"]]
     assert keys[:7] == ["a", "a", "b", "c", "d", "d", "e"]
-    assert keys.count("1") == len(doc["overhead_ratio"]) and keys.count("2") == 2
+    assert keys.count("1") == len(doc["overhead_ratio"]) and len(keys) == 7 + keys.count("1")
     for c in doc["checks"]:
         assert c["status"] in ("PASS", "MISS", "n/a")
         assert c["status"] == {True: "PASS", False: "MISS", None: "n/a"}[c["passed"]]
     if is_available("mujoco"):
         for c in doc["checks"]:
-            if c["key"] in "ab2":
+            if c["key"] in "ab":
                 assert _positive(c["value"]) or c["key"] == "b", c  # b may be negative: noise
                 assert c["status"] != "n/a", c
     # the quick suite is not the pinned one: measured, not judged
@@ -301,13 +296,11 @@ def test_quick_bench_reports_every_figure(quick_run):
         if engine in doc["overhead_ratio"]:
             for key in ("bare_step_s", "freebody_step_s"):
                 assert _positive(doc["engine_step_s"][engine][key])
-    assert set(doc["reference_body_step_s"]) == set(BATCHED_INTEGRATORS)
-    for name, row in doc["reference_body_step_s"].items():
-        assert set(row) == {str(B) for B in BATCH_SIZES}
-        assert all(_positive(s) for s in row.values()), name
     if "mujoco" in doc["overhead_ratio"]:
         for name in ENGINE_EQUIVALENT_MAPS:
-            assert _positive(doc["reference_speedup_vs_mujoco"][name]["1000"])
+            assert _positive(doc["reference_map_speedup_vs_mujoco"][name])
+    # schema 3: the batched part of schema 2 is gone
+    assert not {"reference_body_step_s", "mujoco_body_step_s", "batch_steps"} & set(doc)
 
 
 @pytest.mark.slow
@@ -315,7 +308,7 @@ def test_bench_json_prints_one_object_and_the_text_summary_renders_it(quick_run)
     stdout, doc = quick_run
     assert json.loads(stdout) == doc
     text = bench.format_text(doc)
-    for part in ("reference maps, one body", "suite wall time", "peak RSS", "engine loop overhead",
-                 "batched reference"):
+    for part in ("reference maps, one body", "suite wall time", "peak RSS", "engine loop overhead"):
         assert part in text
+    assert "batched" not in text
     assert text.count("PASS") + text.count("MISS") + text.count("n/a") >= len(doc["checks"])

@@ -18,8 +18,8 @@ def add_parser(sub) -> None:
                     "of 50,000 MuJoCo Euler steps minus the same at 10 steps vs MuJoCo's bare "
                     "stepping; c. a pinned default suite (525 runs, report included) with --jobs 1 "
                     "and --jobs max(2, cores); d. its trajectory files and report.html; e. the peak RSS of a "
-                    "long run; and each engine's bare loop vs freebody's, the batched reference "
-                    "integrators vs mj_step. Medians over repeats are quoted.")
+                    "long run; and each engine's bare loop vs freebody's. Medians over repeats "
+                    "are quoted.")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the text summary")
     p.add_argument("--quick", action="store_true",
                    help="fewer steps and repeats, a 60-run slice of the suite, a 1e5-step RSS run: "

@@ -39,9 +39,10 @@ Beside them, as before (schema 1):
 1. Engine overhead, per registered engine (a missing one, or one whose adapter declares no bare
    loop, is listed under ``skipped`` with the reason): the adapter's ``bare_loop`` for N steps
    against freebody's ``adapter.simulate(N)`` on the same engine world.  Target <= 1.3x.
-2. The reference integrators batched over B bodies (:mod:`freebody.reference_impl.batched`),
-   B = 1, 100, 1000, 10000: seconds per body-step and the speed-up over one yardstick step.
-   Target: the engine-equivalent maps >= 20x at B = 1000.
+
+(Schema 2 had a part 2, the reference integrators batched over B bodies: their module was removed
+with schema 3, being on no path users take; the numba-compiled single-body maps of a are faster
+on a sweep's batches.)
 
 The result is one JSON document (schema version :data:`SCHEMA_VERSION`) and a text summary: the
 table of checks first, then the figures behind them.
@@ -67,7 +68,10 @@ from ..results.document import document_header
 # 2: the checks of issue 15 (a-e: "checks", "reference_map_*", "long_run_*", "rss_*",
 #    "suite_pinned_*", "suite_*_bytes"); the suite is the pinned list with its report; every key
 #    of version 1 is still written with its meaning (suite_* now time the pinned suite).
-SCHEMA_VERSION = 2
+# 3: part 2 (batched reference integrators) removed with reference_impl/batched.py: no
+#    "reference_body_step_s", "reference_speedup_vs_mujoco", "mujoco_body_step_s", "batch_steps",
+#    "batch_note", no targets "batch_speedup_min", "batch_size"; every other key as in 2.
+SCHEMA_VERSION = 3
 
 CASE = "dzhanibekov"             # torque-free, no gravity, no loads: the engines' bare step
 DT = 0.001                       # s
@@ -93,11 +97,6 @@ DEFAULT_RSS_STEPS = 10**6       # a 1e7-step run may need many GB while the targ
 QUICK_RSS_STEPS = 10**5
 # issue 6
 TARGET_OVERHEAD_RATIO = 1.3      # freebody's engine loop at most 1.3 x the bare loop
-TARGET_BATCH_SPEEDUP = 20.0      # engine-equivalent maps >= 20 x faster per body-step than MuJoCo
-TARGET_BATCH_SIZE = 1000         # ... at B = 1000
-
-BATCH_SIZES = (1, 100, 1000, 10000)
-BATCH_OMEGA_SCALE = 5.0          # rad/s: batch bodies spin at ~ |N(0, 1)| x 5 rad/s, |h w| ~ 0.01
 
 # --- the pinned suite (c, d) -----------------------------------------------------------------------
 # The default suite without MJX (`freebody run --engine reference --engine mujoco --engine pybullet
@@ -146,7 +145,7 @@ MB = 1e6
 class BenchConfig:
     """What one ``freebody bench`` measures.
 
-    engine_steps : steps of each engine loop (1).  batch_steps : {B: steps} of each batched run (2).
+    engine_steps : steps of each engine loop (1).
     map_steps : steps of each reference-map call and of the yardstick loop it is compared with (a).
     repeats : repeats of every in-process measurement and of b's commands (medians are quoted).
     suite : run the suite part (c, d).  suite_cases : its cases (the pinned ones, or a quick slice).
@@ -155,7 +154,6 @@ class BenchConfig:
     """
 
     engine_steps: int
-    batch_steps: dict
     map_steps: int
     repeats: int
     suite: bool
@@ -168,12 +166,10 @@ class BenchConfig:
     def make(cls, quick: bool, repeats: int | None = None, suite: bool = True,
              rss_steps: int | None = None, suite_repeats: int | None = None) -> "BenchConfig":
         if quick:
-            return cls(engine_steps=500, batch_steps={1: 20, 100: 20, 1000: 10, 10000: 3},
-                       map_steps=20_000, repeats=repeats or 3, suite=suite,
+            return cls(engine_steps=500, map_steps=20_000, repeats=repeats or 3, suite=suite,
                        suite_cases=QUICK_SUITE_CASES, suite_repeats=suite_repeats or 1,
                        rss_steps=QUICK_RSS_STEPS if rss_steps is None else rss_steps, quick=True)
-        return cls(engine_steps=20000, batch_steps={1: 200, 100: 200, 1000: 100, 10000: 30},
-                   map_steps=200_000, repeats=repeats or 7, suite=suite,
+        return cls(engine_steps=20000, map_steps=200_000, repeats=repeats or 7, suite=suite,
                    suite_cases=tuple(PINNED_SUITE_CASES), suite_repeats=suite_repeats or 3,
                    rss_steps=DEFAULT_RSS_STEPS if rss_steps is None else rss_steps, quick=False)
 
@@ -414,65 +410,6 @@ def reference_maps(config: BenchConfig, progress: bool = False) -> dict:
         out["reference_map_speedup_vs_mujoco"] = {name: mj_med / s for name, s in step_s.items()}
     else:
         out["reference_map_mujoco_note"] = mj_note
-    return out
-
-
-# --- 2. batched reference integrators -------------------------------------------------------------
-
-def _batch_inputs(B: int) -> dict:
-    """B copies of the case's body with seeded random attitudes and angular velocities."""
-    from ..input.casefile import load_case
-
-    body = load_case(CASE).body
-    rng = np.random.default_rng(20240606)
-    q = rng.normal(size=(B, 4))
-    return dict(mass=body.mass, I_body=np.array(body.I_body), position=np.zeros((B, 3)),
-                quaternion_wxyz=q / np.linalg.norm(q, axis=1, keepdims=True),
-                linear_velocity=np.zeros((B, 3)),
-                angular_velocity=BATCH_OMEGA_SCALE * rng.normal(size=(B, 3)))
-
-
-def batched_reference(config: BenchConfig, progress: bool = False) -> dict:
-    """Seconds per body-step of every batched integrator at every B, and of a bare mj_step.
-
-    The repeats are interleaved: each repeat times MuJoCo, then every (integrator, B).
-    """
-    from ..reference_impl.batched import BATCHED_INTEGRATORS, simulate_batch
-
-    mj_timer, mj_note = _yardstick_or_note(config.engine_steps)
-    inputs = {B: _batch_inputs(B) for B in BATCH_SIZES}
-    mj: list[float] = []
-    per: dict[tuple[str, int], list[float]] = {}
-    setup: dict[tuple[str, int], list[float]] = {}
-    for r in range(config.repeats):
-        if mj_timer is not None:
-            mj.append(mj_timer())
-        for name in BATCHED_INTEGRATORS:
-            for B in BATCH_SIZES:
-                n = config.batch_steps[B]
-                kw = inputs[B]
-                t0 = _timed(lambda: simulate_batch(name, dt=DT, steps=0, **kw))
-                t = _timed(lambda: simulate_batch(name, dt=DT, steps=n, every=n, **kw))
-                setup.setdefault((name, B), []).append(t0)
-                per.setdefault((name, B), []).append((t, n * B))
-        _log(f"batched reference repeat {r + 1}/{config.repeats}"
-             + (f": mj_step {mj[-1] * 1e6:.2f} us" if mj else ""), progress)
-    body_step: dict[str, dict[str, float]] = {}
-    for (name, B), samples in per.items():
-        t_setup = _median(setup[(name, B)])
-        t_run = _median([t for t, _ in samples])
-        body_steps = samples[0][1]
-        # the set-up (zero steps) subtracted; floored at 1/10 of the raw figure against noise
-        body_step.setdefault(name, {})[str(B)] = max(t_run - t_setup, 0.1 * t_run) / body_steps
-    out = {"reference_body_step_s": body_step, "batch_steps": {str(B): n for B, n in
-                                                               config.batch_steps.items()}}
-    if mj:
-        mj_med = _median(mj)
-        out["mujoco_body_step_s"] = mj_med
-        out["reference_speedup_vs_mujoco"] = {
-            name: {B: mj_med / s for B, s in row.items()} for name, row in body_step.items()}
-    else:
-        out["mujoco_note"] = mj_note
     return out
 
 
@@ -739,8 +676,6 @@ def run_bench(config: BenchConfig, progress: bool = False) -> dict:
         engine_step_s=engine_steps,
         skipped=skipped,
         targets={"overhead_ratio_max": TARGET_OVERHEAD_RATIO,
-                 "batch_speedup_min": TARGET_BATCH_SPEEDUP,
-                 "batch_size": TARGET_BATCH_SIZE,
                  "engine_equivalent_maps": list(ENGINE_EQUIVALENT_MAPS),
                  "map_speedup_min": TARGET_MAP_SPEEDUP,
                  "long_run_factor": TARGET_LONG_RUN_FACTOR,
@@ -752,7 +687,6 @@ def run_bench(config: BenchConfig, progress: bool = False) -> dict:
                  "rss_steps": TARGET_RSS_STEPS},
     )
     doc.update(_guarded("reference_map", lambda: reference_maps(config, progress), progress))
-    doc.update(_guarded("batch", lambda: batched_reference(config, progress), progress))
     doc.update(_guarded("long_run", lambda: long_run(config, progress), progress))
     doc.update(_guarded("rss", lambda: peak_rss(config, progress), progress))
     if config.suite:
@@ -767,7 +701,7 @@ def run_bench(config: BenchConfig, progress: bool = False) -> dict:
 
 def checks(doc: dict) -> list[Check]:
     """The targets of a bench document, in the order of the table: a (each engine-equivalent map),
-    b, c, d (trajectories, report.html), e, then the overhead (1) and batch (2) targets."""
+    b, c, d (trajectories, report.html), e, then the overhead targets (1)."""
     out: list[Check] = []
     quick = bool(doc.get("quick"))
     mj = doc.get("reference_map_mujoco_step_s")
@@ -811,14 +745,6 @@ def checks(doc: dict) -> list[Check]:
         out.append(make_check("1", f"{engine} loop: freebody / bare", res["overhead_ratio"],
                               "<=", TARGET_OVERHEAD_RATIO, "x",
                               f"{_us(res['freebody_step_s'])} vs {_us(res['bare_step_s'])} a step"))
-    bmj = doc.get("mujoco_body_step_s")
-    for name in ENGINE_EQUIVALENT_MAPS:
-        s = doc.get("reference_body_step_s", {}).get(name, {}).get(str(TARGET_BATCH_SIZE))
-        out.append(make_check("2", f"{name}, B={TARGET_BATCH_SIZE}: per body-step",
-                              bmj / s if bmj and s else None, ">=", TARGET_BATCH_SPEEDUP, "x",
-                              f"{_us(s)} vs {_us(bmj)}" if bmj and s else "",
-                              note="" if bmj and s else doc.get("mujoco_note")
-                              or doc.get("batch_note", "")))
     return out
 
 
@@ -880,24 +806,40 @@ def format_text(doc: dict) -> str:
     lines.append(f"   {sum(c['status'] == 'PASS' for c in rows)} PASS, {len(missed)} MISS, "
                  f"{sum(c['status'] == 'n/a' for c in rows)} n/a")
     lines.append("")
+    for part in (_map_lines, _long_run_lines, _suite_lines, _rss_lines, _overhead_lines):
+        lines += part(doc)
+    return "\n".join(lines)
 
+
+def _map_lines(doc: dict) -> list[str]:
+    """a. the reference maps' step times (nothing when not measured)."""
+    if "reference_map_step_s" not in doc:
+        return []
     mj = doc.get("reference_map_mujoco_step_s")
-    if "reference_map_step_s" in doc:
-        lines.append(f"a. reference maps, one body, {doc['reference_map_steps']} steps a call "
-                     f"(integrators.simulate, compiled); mj_step: {_us(mj)}")
-        lines.append(f"   {'integrator':28s} {'per step':>10s} {'whole call':>11s} {'vs mj_step':>11s}")
-        for name, s in doc["reference_map_step_s"].items():
-            lines.append(f"   {name:28s} {_us(s):>10s} {doc['reference_map_call_s'][name] * 1e3:8.2f} ms "
-                         + (f"{mj / s:10.1f}x" if mj else f"{'-':>11s}"))
-        lines.append("")
-    if "long_run_s" in doc:
-        lines.append(f"b. {doc['long_run_command']}")
-        lines.append(f"   {doc['long_run_steps']} steps {doc['long_run_s']:.2f} s, {doc['short_run_steps']} "
-                     f"steps {doc['short_run_s']:.2f} s: {doc['long_run_extra_s']:.2f} s for the steps, "
-                     f"MuJoCo's bare loop {doc['long_run_bare_s']:.3f} s "
-                     f"(limit {doc['long_run_limit_s']:.2f} s)")
-        lines.append("")
-    lines.append("c, d. suite wall time and output")
+    lines = [f"a. reference maps, one body, {doc['reference_map_steps']} steps a call "
+             f"(integrators.simulate, compiled); mj_step: {_us(mj)}",
+             f"   {'integrator':28s} {'per step':>10s} {'whole call':>11s} {'vs mj_step':>11s}"]
+    for name, s in doc["reference_map_step_s"].items():
+        lines.append(f"   {name:28s} {_us(s):>10s} {doc['reference_map_call_s'][name] * 1e3:8.2f} ms "
+                     + (f"{mj / s:10.1f}x" if mj else f"{'-':>11s}"))
+    return lines + [""]
+
+
+def _long_run_lines(doc: dict) -> list[str]:
+    """b. the long run through the command (nothing when not measured)."""
+    if "long_run_s" not in doc:
+        return []
+    return [f"b. {doc['long_run_command']}",
+            f"   {doc['long_run_steps']} steps {doc['long_run_s']:.2f} s, {doc['short_run_steps']} "
+            f"steps {doc['short_run_s']:.2f} s: {doc['long_run_extra_s']:.2f} s for the steps, "
+            f"MuJoCo's bare loop {doc['long_run_bare_s']:.3f} s "
+            f"(limit {doc['long_run_limit_s']:.2f} s)",
+            ""]
+
+
+def _suite_lines(doc: dict) -> list[str]:
+    """c, d. the suite's wall times and output sizes, or why they were not measured."""
+    lines = ["c, d. suite wall time and output"]
     if doc.get("suite_parallel_all_s"):
         lines.append("   serial " + ", ".join(f"{t:.1f}" for t in doc["suite_serial_all_s"])
                      + " s; parallel " + ", ".join(f"{t:.1f}" for t in doc["suite_parallel_all_s"]) + " s")
@@ -910,41 +852,30 @@ def format_text(doc: dict) -> str:
                      f"{(doc['suite_report_html_bytes'] or 0) / MB:.2f} MB, results.json "
                      f"{(doc['suite_results_json_bytes'] or 0) / MB:.2f} MB")
         lines.append(f"   {doc.get('suite_note')}")
-    lines.append("")
-    if "rss_bytes" in doc:
-        lines.append(f"e. peak RSS: {doc['rss_bytes'] / MB:.0f} MB for {doc['rss_steps']} steps "
-                     f"({doc['rss_run_s']:.1f} s)"
-                     + (f", {doc['short_run_rss_bytes'] / MB:.0f} MB for {doc['short_run_steps']}, "
-                        f"{doc['long_run_rss_bytes'] / MB:.0f} MB for {doc['long_run_steps']}"
-                        if "short_run_rss_bytes" in doc else ""))
-    else:
-        lines.append(f"e. peak RSS: {doc.get('rss_note')}")
-    lines.append("")
+    return lines + [""]
 
-    lines.append(f"1. engine loop overhead ({doc['engine_steps']} steps; target <= "
-                 f"{TARGET_OVERHEAD_RATIO}x)")
-    lines.append(f"   {'engine':10s} {'version':12s} {'bare us/step':>13s} {'freebody us/step':>17s} "
-                 f"{'ratio':>7s}")
+
+def _rss_lines(doc: dict) -> list[str]:
+    """e. the peak RSS, or why it was not measured."""
+    if "rss_bytes" not in doc:
+        return [f"e. peak RSS: {doc.get('rss_note')}", ""]
+    return [f"e. peak RSS: {doc['rss_bytes'] / MB:.0f} MB for {doc['rss_steps']} steps "
+            f"({doc['rss_run_s']:.1f} s)"
+            + (f", {doc['short_run_rss_bytes'] / MB:.0f} MB for {doc['short_run_steps']}, "
+               f"{doc['long_run_rss_bytes'] / MB:.0f} MB for {doc['long_run_steps']}"
+               if "short_run_rss_bytes" in doc else ""),
+            ""]
+
+
+def _overhead_lines(doc: dict) -> list[str]:
+    """1. each engine's loop overhead, and the engines skipped."""
+    lines = [f"1. engine loop overhead ({doc['engine_steps']} steps; target <= {TARGET_OVERHEAD_RATIO}x)",
+             f"   {'engine':10s} {'version':12s} {'bare us/step':>13s} {'freebody us/step':>17s} "
+             f"{'ratio':>7s}"]
     for engine, res in doc["engine_step_s"].items():
         lines.append(f"   {engine:10s} {str(doc['engines'].get(engine)):12s} "
                      f"{res['bare_step_s'] * 1e6:13.2f} {res['freebody_step_s'] * 1e6:17.2f} "
                      f"{res['overhead_ratio']:6.2f}x")
     for engine, why in doc["skipped"].items():
         lines.append(f"   {engine:10s} skipped: {why}")
-    lines.append("")
-    bmj = doc.get("mujoco_body_step_s")
-    if "reference_body_step_s" in doc:
-        lines.append("2. batched reference integrators: ns per body-step"
-                     + (f" (speed-up over one MuJoCo mj_step = {bmj * 1e9:.0f} ns)" if bmj else
-                        f" ({doc.get('mujoco_note')})"))
-        Bs = [str(B) for B in BATCH_SIZES]
-        lines.append(f"   {'integrator':28s} " + " ".join(f"{'B=' + B:>16s}" for B in Bs))
-        for name, row in doc["reference_body_step_s"].items():
-            cells = []
-            for B in Bs:
-                s = row[B]
-                cells.append(f"{s * 1e9:8.1f} ({bmj / s:5.1f}x)" if bmj else f"{s * 1e9:16.1f}")
-            lines.append(f"   {name:28s} " + " ".join(f"{c:>16s}" for c in cells))
-    else:
-        lines.append(f"2. batched reference integrators: {doc.get('batch_note')}")
-    return "\n".join(lines)
+    return lines
