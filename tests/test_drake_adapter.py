@@ -34,13 +34,15 @@ from freebody.input import load_case  # noqa: E402
 from freebody.reference_impl.engine_maps import (DRAKE_SEMI_IMPLICIT, DRAKE_TABLEAUS,  # noqa: E402
                                                  drake_time_derivatives)
 from freebody.reference_impl.integrators import simulate as map_simulate  # noqa: E402
-from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
+from freebody.reference_impl.problem import Load, Problem  # noqa: E402
 from freebody.reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec  # noqa: E402
 from freebody.reference_impl.sampling import LOAD_SAMPLING_PER_STAGE, LOAD_SAMPLING_PER_STEP  # noqa: E402
 from freebody.reference_impl.truth import truth_trajectory  # noqa: E402
 from freebody.run import RunSpec, execute  # noqa: E402
 from freebody.run.matrix import expand  # noqa: E402
 from freebody.run.selfcheck import run_trap_checks  # noqa: E402
+from freebody.testing import assert_same_rotation, full_inertia, general_problem, make_adapter  # noqa: E402
+from freebody.testing.helpers import GENERAL_Q0, GENERAL_W0  # noqa: E402
 
 # --- tolerances ----------------------------------------------------------------------------------
 # Drake's time derivatives against drake_time_derivatives at one state: the same formulas in another
@@ -85,9 +87,8 @@ STALE_STEP_APART = 1e-11
 # sqrt(1 + h^2 |w|^2 / 4) per step, |w| ~ 5); the test wants it between these.
 NORM_AFTER_10S = (1.3, 1.5)
 
-I_FULL = matrix_from_quat(quat_from_rotvec([0.4, -0.7, 0.2])) @ np.diag([1.0, 2.0, 2.5]) \
-    @ matrix_from_quat(quat_from_rotvec([0.4, -0.7, 0.2])).T
-Q0 = quat_from_rotvec([0.9, 0.3, -1.1])
+I_FULL = full_inertia((1.0, 2.0, 2.5))  # non-diagonal, kg m^2
+Q0 = GENERAL_Q0  # the general problem's orientation, wxyz
 FIXED_EXPLICIT = ("discrete", "explicit-euler", "semi-explicit-euler", "rk2", "rk3",
                   "bogacki-shampine3", "rk5")
 MAP_OF = {"discrete": DRAKE_SEMI_IMPLICIT, "semi-explicit-euler": DRAKE_SEMI_IMPLICIT,
@@ -95,24 +96,10 @@ MAP_OF = {"discrete": DRAKE_SEMI_IMPLICIT, "semi-explicit-euler": DRAKE_SEMI_IMP
           "bogacki-shampine3": "quat-rate-bs3", "rk5": "quat-rate-rk5"}
 
 
-def _problem(loads=(), gravity=(0.1, -0.2, -9.81), w0=(0.7, -2.0, 1.3), duration=1.0) -> Problem:
-    return Problem("drake-test", "", Body(1.7, I_FULL),
-                   InitialState([1.0, -2.0, 3.0], Q0, [0.3, -0.2, 0.5], w0), gravity, tuple(loads),
-                   duration=duration)
-
-
-@pytest.fixture
-def make_adapter():
-    made = []
-
-    def make(problem, dt, integrator):
-        a = DrakeAdapter(problem, dt, integrator)
-        made.append(a)
-        return a
-
-    yield make
-    for a in made:
-        a.close()
+def _problem(loads=(), gravity=(0.1, -0.2, -9.81), w0=GENERAL_W0, duration=1.0) -> Problem:
+    """freebody.testing's general problem with this module's body (1.7 kg, I_FULL) and a tilted
+    gravity; adapters from its make_adapter fixture."""
+    return general_problem(loads, gravity=gravity, w=w0, duration=duration, mass=1.7, I_body=I_FULL)
 
 
 # --- registry, integrators ---------------------------------------------------------------------
@@ -153,7 +140,7 @@ def test_raw_coordinates_are_q_x_w_v_in_world(integrator, make_adapter):
     """What the adapter writes raw reads back through Drake's frame-explicit world getters: the
     quaternion (w, x, y, z) body -> world, the COM, w and v in WORLD."""
     pb = _problem()
-    a = make_adapter(pb, 0.01, integrator)
+    a = make_adapter("drake", pb, 0.01, integrator)
     raw = a.plant.GetPositionsAndVelocities(a.context)
     init = pb.initial
     np.testing.assert_array_equal(raw, np.concatenate([init.quaternion_wxyz, init.position,
@@ -178,7 +165,7 @@ def test_time_derivatives_are_the_maps(loads, make_adapter):
     from the initial state) with the load system in the loop are drake_time_derivatives' with the
     wrench of THAT state (Segment.wrench at x and R(q / |q|)): qdot = 1/2 (0, w) q linear in the
     stored q, wdot from the normalised rotation, world w."""
-    a = make_adapter(_problem(loads), 0.01, "rk5")
+    a = make_adapter("drake", _problem(loads), 0.01, "rk5")
     y = a.plant.GetPositionsAndVelocities(a.context).copy()
     y[0:4] = 2.0 * quat_from_rotvec([-0.8, 0.5, 1.9])
     y[4:7] += [0.7, -0.3, 1.1]
@@ -209,7 +196,7 @@ def test_load_torque_is_segment_wrench():
 
 def test_quaternion_norm_is_reported_raw_and_the_orientation_normalised(make_adapter):
     pb = load_case("dzhanibekov")
-    a = make_adapter(pb, 0.01, "discrete")
+    a = make_adapter("drake", pb, 0.01, "discrete")
     tr = a.simulate(pb.steps(0.01))
     raw = a.plant.GetPositions(a.context)[0:4]
     assert NORM_AFTER_10S[0] < np.linalg.norm(raw) < NORM_AFTER_10S[1]
@@ -247,7 +234,7 @@ def test_engine_defaults_are_as_recorded():
 @pytest.mark.parametrize("integrator", ["discrete", "rk3", "rk5-accuracy-1e-10"])
 def test_settings_read_back(integrator, make_adapter):
     dt, g = 0.005, (0.1, -0.2, -9.81)
-    a = make_adapter(_problem(gravity=g), dt, integrator)
+    a = make_adapter("drake", _problem(gravity=g), dt, integrator)
     s, plant = a.settings, a.plant
     assert s["time_step"] == {"default": 0.001, "set": plant.time_step()}
     assert plant.time_step() == (dt if integrator == "discrete" else 0.0)
@@ -288,9 +275,9 @@ def test_loads_at_points_and_couples_follow_the_map(integrator, make_adapter):
     loads really turn inside the step."""
     assert DrakeAdapter.load_sampling == LOAD_SAMPLING_PER_STAGE
     pb = _problem(LOADS, duration=0.3)
-    tr = make_adapter(pb, 0.01, integrator).simulate(30)
+    tr = make_adapter("drake", pb, 0.01, integrator).simulate(30)
     mapped = map_simulate(pb, MAP_OF[integrator], 0.01, 30, load_sampling=LOAD_SAMPLING_PER_STAGE)
-    assert geodesic_angle(tr.quaternion_wxyz, mapped.quaternion_wxyz).max() < LOADED_VS_MAP
+    assert_same_rotation(tr.quaternion_wxyz, mapped.quaternion_wxyz, LOADED_VS_MAP)
     np.testing.assert_allclose(tr.angular_velocity, mapped.angular_velocity, rtol=0, atol=LOADED_VS_MAP)
     np.testing.assert_allclose(tr.linear_velocity, mapped.linear_velocity, rtol=0, atol=LOADED_VS_MAP)
     np.testing.assert_allclose(tr.position, mapped.position, rtol=0, atol=LOADED_VS_MAP)
@@ -307,7 +294,7 @@ def test_a_load_switching_on_does_not_reach_the_step_before(integrator, make_ada
     loaded = _problem((Load(body_torque=[0.4, -0.2, 0.3], force=[1.0, 0.0, 0.0], body_point=[0.0, 0.1, 0.0],
                             start=0.1),), duration=0.2)
     free = _problem(duration=0.2)
-    a, b = make_adapter(loaded, 0.01, integrator), make_adapter(free, 0.01, integrator)
+    a, b = make_adapter("drake", loaded, 0.01, integrator), make_adapter("drake", free, 0.01, integrator)
     assert a.loads.segments[1].k0 == 10
     on, off = a.simulate(20), b.simulate(20)
     np.testing.assert_array_equal(on.angular_velocity[:11], off.angular_velocity[:11])
@@ -417,7 +404,7 @@ def test_fixed_step_implicit_results_depend_on_the_newton_accuracy():
 
 
 def test_drake_giving_up_is_a_divergence_other_errors_are_not(monkeypatch, make_adapter):
-    a = make_adapter(_problem(), 0.01, "rk5-accuracy-1e-6")
+    a = make_adapter("drake", _problem(), 0.01, "rk5-accuracy-1e-6")
     advance_to = a.simulator.AdvanceTo
     calls = []
 
@@ -433,7 +420,7 @@ def test_drake_giving_up_is_a_divergence_other_errors_are_not(monkeypatch, make_
     assert len(info.value.trajectory) == 4 and info.value.t == pytest.approx(0.03)
     assert "minimum" in info.value.reason and a.k == 3
 
-    b = make_adapter(_problem(), 0.01, "rk5")
+    b = make_adapter("drake", _problem(), 0.01, "rk5")
 
     class Broken:
         def AdvanceTo(self, t):
@@ -608,7 +595,7 @@ def test_the_maps_are_registered():
 # --- bare loop ----------------------------------------------------------------------------------
 
 def test_bare_loop_steps_the_adapters_world(make_adapter):
-    a = make_adapter(_problem(), 0.01, "discrete")
+    a = make_adapter("drake", _problem(), 0.01, "discrete")
     a.simulate(5)
     out = a.bare_loop(7)()
     assert len(out) == 8 and a.context.get_time() == pytest.approx(0.12)

@@ -31,9 +31,10 @@ from freebody.input import load_case  # noqa: E402
 from freebody.reference_impl.conventions import (angular_velocity_body_from_world,  # noqa: E402
                                                  angular_velocity_world_from_body, quat_xyzw_from_wxyz)
 from freebody.reference_impl.integrators import simulate  # noqa: E402
-from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
+from freebody.reference_impl.problem import Load, Problem  # noqa: E402
 from freebody.reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec  # noqa: E402
 from freebody.run.selfcheck import run_trap_checks  # noqa: E402
+from freebody.testing import I_FULL, assert_same_rotation, general_problem, make_adapter  # noqa: E402
 
 # The solvers freebody runs by default (kamino is opt-in: ~35 ms a step) and each one's map.
 SOLVERS = ("semi-implicit", "featherstone", "xpbd", "steel", "vbd")
@@ -63,29 +64,8 @@ IGNORED_DAMPING_RTOL = 1e-4
 # solver's construction and first step beyond a regular one (measured < 0.05 s; cold: 5-40 s).
 WARM_COMPILE_S = 1.0
 
-_R_PRINCIPAL = matrix_from_quat(quat_from_rotvec([0.4, -0.7, 0.2]))
-I_FULL = _R_PRINCIPAL @ np.diag([1.0, 2.0, 3.0]) @ _R_PRINCIPAL.T  # non-diagonal, kg m^2
-Q0 = quat_from_rotvec([0.9, 0.3, -1.1])
-
-
-def _problem(I=I_FULL, q0=Q0, x0=(1.0, -2.0, 3.0), v0=(0.3, -0.2, 0.5), w0=(0.7, -2.0, 1.3),
-             gravity=(0.0, 0.0, -9.81), loads=(), duration=1.0, mass=2.0) -> Problem:
-    return Problem("newton-test", "", Body(mass, I), InitialState(x0, q0, v0, w0), gravity, loads,
-                   duration=duration)
-
-
-@pytest.fixture
-def make_adapter():
-    made = []
-
-    def make(problem, dt, integrator):
-        a = NewtonAdapter(problem, dt, integrator, "float32")
-        made.append(a)
-        return a
-
-    yield make
-    for a in made:
-        a.close()
+# The body: freebody.testing's general problem (I_FULL, diag(1, 2, 3) in rotated principal
+# axes, 2 kg, rotated, offset, moving); adapters from its make_adapter fixture.
 
 
 # --- fast: registry, capabilities, Newton's documented defaults, conversions ----------------------
@@ -158,7 +138,7 @@ def test_body_f_rows_are_force_then_torque_about_the_com():
     loads = (Load(force=(1.0, 2.0, -3.0), body_point=(0.3, -0.1, 0.2)),
              Load(force=(0.5, 0.0, 1.0), point=(2.0, -1.0, 0.5)),
              Load(torque=(0.1, 0.2, 0.3), body_torque=(-0.4, 0.5, 0.6)))
-    pb = _problem(loads=loads)
+    pb = general_problem(loads=loads)
     seg = LoadSchedule(pb, 0.01).at(0)
     x, q = np.array([0.2, -0.3, 1.5]), quat_from_rotvec([0.3, -0.9, 0.4])
     row = np.concatenate([x, quat_xyzw_from_wxyz(q)]).astype(np.float32)
@@ -220,8 +200,8 @@ def test_joint_q_is_left_behind_by_maximal_coordinate_solvers(solver, make_adapt
     """KNOWN ENGINE PROPERTY: semi-implicit, xpbd and vbd integrate body_q/body_qd and never touch
     the FREE joint's joint_q/joint_qd; featherstone and steel integrate joint_q and compute body_q
     from it (equal).  The adapter reads body_q for all."""
-    pb = _problem()
-    a = make_adapter(pb, 0.01, solver)
+    pb = general_problem()
+    a = make_adapter("newton", pb, 0.01, solver)
     tr = a.simulate(20)
     state = a._views[0].state
     body_q, joint_q = state.body_q.numpy()[0], state.joint_q.numpy()
@@ -247,8 +227,8 @@ EXPECTED_SETTINGS = {
 @pytest.mark.slow
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_settings_are_recorded_and_read_back(solver, make_adapter):
-    pb = _problem(gravity=(0.5, -1.0, -3.0))
-    a = make_adapter(pb, 0.01, solver)
+    pb = general_problem(gravity=(0.5, -1.0, -3.0))
+    a = make_adapter("newton", pb, 0.01, solver)
     assert set(a.settings) == EXPECTED_SETTINGS[solver]
     json.dumps(a.settings, allow_nan=False)
     np.testing.assert_allclose(a.settings["gravity"]["set"], [0.5, -1.0, -3.0], rtol=READBACK_RTOL)
@@ -288,7 +268,7 @@ def test_solver_follows_its_map(solver, case, make_adapter):
     pb, dt = load_case(case), 0.01
     n = pb.steps(dt)
     own = simulate(pb, MAPS[solver], dt, n).quaternion_wxyz
-    got = make_adapter(pb, dt, solver).simulate(n).quaternion_wxyz
+    got = make_adapter("newton", pb, dt, solver).simulate(n).quaternion_wxyz
     d_own = float(np.max(geodesic_angle(got, own)))
     d_other = _nearest_other_map(pb, dt, n, MAPS[solver], own)
     print(f"{solver} {case}: own map {d_own:.2e} rad, nearest other map {d_other:.2e} rad")
@@ -306,9 +286,9 @@ def test_float32_spin_bias_documented(solver, make_adapter):
     featherstone keeps |w| (world frame throughout); vbd shortens it by its map's (h |w|)^2 / 12
     (1.07e-4).  If this fails, Newton changed: update SPIN_BIAS_PER_STEP and docs/adapters.md."""
     n = 2000
-    pb = _problem(I=np.diag([1.0, 2.0, 3.0]), q0=(1.0, 0.0, 0.0, 0.0), w0=(0.0, 0.0, 4.0), gravity=(0, 0, 0),
-                  duration=20.0)
-    w = np.linalg.norm(make_adapter(pb, 0.01, solver).simulate(n).angular_velocity, axis=1)
+    pb = general_problem(I_body=np.diag([1.0, 2.0, 3.0]), q=(1.0, 0.0, 0.0, 0.0), w=(0.0, 0.0, 4.0),
+                         gravity=(0, 0, 0), duration=20.0)
+    w = np.linalg.norm(make_adapter("newton", pb, 0.01, solver).simulate(n).angular_velocity, axis=1)
     per_step = (w[-1] / w[0]) ** (1.0 / n) - 1.0
     lo, hi = SPIN_BIAS_PER_STEP[solver]
     assert lo <= per_step <= hi, per_step
@@ -321,7 +301,7 @@ def test_kamino_follows_its_map(make_adapter):
     pb, dt, n = load_case("body_torque_spinup"), 0.01, 50
     own = simulate(pb, MAPS["kamino"], dt, n).quaternion_wxyz
     physx = simulate(pb, "explicit-gyro-rescaled-momentum", dt, n).quaternion_wxyz
-    got = make_adapter(pb, dt, "kamino").simulate(n).quaternion_wxyz
+    got = make_adapter("newton", pb, dt, "kamino").simulate(n).quaternion_wxyz
     d_own, d_physx = (float(np.max(geodesic_angle(got, r))) for r in (own, physx))
     assert d_own <= OWN_MAP_RAD and d_own <= OWN_VS_OTHER_MAP * d_physx, (d_own, d_physx)
 
@@ -332,12 +312,12 @@ def test_kamino_follows_its_map(make_adapter):
 def test_loads_switch_off_and_body_f_is_cleared(make_adapter):
     """A body-point push for 3 steps, then nothing: the run follows the map over the switch (body_f
     rewritten with zeros: Newton never clears it), and the last sample is Newton's state."""
-    pb = _problem(loads=(Load(force=(3.0, -1.0, 2.0), body_point=(0.3, 0.1, -0.2), start=0.02, steps=3),),
-                  gravity=(0.0, 0.0, 0.0))
-    a = make_adapter(pb, 0.01, "semi-implicit")
+    pb = general_problem(loads=(Load(force=(3.0, -1.0, 2.0), body_point=(0.3, 0.1, -0.2), start=0.02,
+                                     steps=3),), gravity=(0.0, 0.0, 0.0))
+    a = make_adapter("newton", pb, 0.01, "semi-implicit")
     tr = a.simulate(30)
     ref = simulate(pb, MAPS["semi-implicit"], 0.01, 30)
-    assert np.max(geodesic_angle(tr.quaternion_wxyz, ref.quaternion_wxyz)) < OWN_MAP_RAD
+    assert_same_rotation(tr.quaternion_wxyz, ref.quaternion_wxyz, OWN_MAP_RAD)
     np.testing.assert_allclose(tr.angular_velocity, ref.angular_velocity, atol=1e-5)
     for views in a._views:
         np.testing.assert_array_equal(views.state.body_f.numpy(), 0.0)
@@ -347,10 +327,10 @@ def test_loads_switch_off_and_body_f_is_cleared(make_adapter):
 def test_compile_time_is_reported_apart(make_adapter):
     """compile_time_s: the build and first step beyond a regular step; a second adapter of the same
     solver in the process finds the kernels loaded."""
-    pb = _problem()
-    first = make_adapter(pb, 0.01, "semi-implicit")
+    pb = general_problem()
+    first = make_adapter("newton", pb, 0.01, "semi-implicit")
     first.simulate(5)
-    second = make_adapter(pb, 0.01, "semi-implicit")
+    second = make_adapter("newton", pb, 0.01, "semi-implicit")
     second.simulate(5)
     for a in (first, second):
         assert a.compile_time_s >= 0.0 and a.step_time_s > 0.0

@@ -21,10 +21,12 @@ from freebody.adapters.pybullet_adapter import (DEFAULT_DAMPING,  # noqa: E402
                                                 MAX_COORDINATE_VELOCITY, PybulletAdapter)
 from freebody.reference_impl.conventions import angular_momentum  # noqa: E402
 from freebody.reference_impl.integrators import simulate as reference_simulate  # noqa: E402
-from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
+from freebody.reference_impl.problem import Load, Problem  # noqa: E402
 from freebody.reference_impl.rotations import (geodesic_angle, matrix_from_quat,  # noqa: E402
                                                quat_conjugate, quat_from_rotvec, quat_multiply,
                                                skew)
+from freebody.testing import I_FULL, assert_same_rotation, general_problem, make_adapter  # noqa: E402
+from freebody.testing.helpers import GENERAL_Q0  # noqa: E402
 
 VARIANTS = ("multibody", "maximal")
 MATCHING_MAP = {"multibody": "semi-implicit-explicit-gyro", "maximal": "semi-implicit-implicit-gyro"}
@@ -47,29 +49,10 @@ CAP_MIN_ERROR = 0.1
 # The capped angle follows Bullet's formula (below) to round-off.
 CAP_FORMULA_TOL = 1e-12
 
-_R_PRINCIPAL = matrix_from_quat(quat_from_rotvec([0.4, -0.7, 0.2]))  # principal axes in the body
-I_FULL = _R_PRINCIPAL @ np.diag([1.0, 2.0, 3.0]) @ _R_PRINCIPAL.T   # non-diagonal, kg m^2
-Q0 = quat_from_rotvec([0.9, 0.3, -1.1])                               # non-identity, wxyz
-
-
-def _problem(I=I_FULL, q0=Q0, x0=(1.0, -2.0, 3.0), v0=(0.3, -0.2, 0.5), w0=(0.7, -2.0, 1.3),
-             gravity=(0.0, 0.0, -9.81), loads=(), duration=1.0, mass=2.0) -> Problem:
-    return Problem("pybullet-test", "", Body(mass, I), InitialState(x0, q0, v0, w0),
-                   gravity, loads, duration=duration)
-
-
-@pytest.fixture
-def make_adapter():
-    made = []
-
-    def make(problem, dt, integrator):
-        a = PybulletAdapter(problem, dt, integrator)
-        made.append(a)
-        return a
-
-    yield make
-    for a in made:
-        a.close()
+# The body: freebody.testing's general problem (I_FULL, diag(1, 2, 3) in rotated principal
+# axes, 2 kg, rotated, offset, moving); adapters from its make_adapter fixture.
+_R_PRINCIPAL = matrix_from_quat(quat_from_rotvec([0.4, -0.7, 0.2]))  # principal axes of I_FULL
+Q0 = GENERAL_Q0  # the general problem's orientation, wxyz
 
 
 def test_registered_and_variants():
@@ -85,7 +68,7 @@ def test_registered_and_variants():
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_settings_read_back(variant, make_adapter):
     dt, g = 0.005, (0.1, -0.2, -9.81)
-    a = make_adapter(_problem(gravity=g), dt, variant)
+    a = make_adapter("pybullet", general_problem(gravity=g), dt, variant)
     cid, b = a._cid, a._body
     params = pybullet.getPhysicsEngineParameters(physicsClientId=cid)
     assert params["fixedTimeStep"] == dt
@@ -106,8 +89,9 @@ def test_settings_read_back(variant, make_adapter):
     # The behaviour behind the settings: fast translation and a fast spin about a principal
     # axis along a world axis keep their velocities (no damping, no +-100 clamp); gravity acts.
     q0 = quat_from_rotvec([0.0, 0.0, 0.3])
-    a = make_adapter(_problem(I=np.diag([1.0, 2.0, 3.0]), q0=q0, v0=(150.0, -150.0, 0.0),
-                              w0=(0.0, 0.0, 150.0), gravity=g), dt, variant)
+    pb = general_problem(I_body=np.diag([1.0, 2.0, 3.0]), q=q0, v=(150.0, -150.0, 0.0),
+                         w=(0.0, 0.0, 150.0), gravity=g)
+    a = make_adapter("pybullet", pb, dt, variant)
     tr = a.simulate(10)
     np.testing.assert_allclose(tr.linear_velocity[-1], np.array([150.0, -150.0, 0.0]) + 10 * dt * np.array(g),
                                rtol=1e-12)
@@ -154,8 +138,8 @@ def test_no_sleeping(variant, make_adapter):
     """A slow body for 3 s (beyond Bullet's 2 s deactivation time), then a push moves it."""
     dt = 0.01
     push = Load(force=(2.0, 0.0, 0.0), start=3.0, steps=1)
-    pb = _problem(v0=(1e-3, 0.0, 0.0), w0=(0.0, 0.0, 1e-3), gravity=(0, 0, 0), loads=(push,))
-    tr = make_adapter(pb, dt, variant).simulate(301)
+    pb = general_problem(v=(1e-3, 0.0, 0.0), w=(0.0, 0.0, 1e-3), gravity=(0, 0, 0), loads=(push,))
+    tr = make_adapter("pybullet", pb, dt, variant).simulate(301)
     assert tr.linear_velocity[300, 0] == pytest.approx(1e-3, rel=1e-12)
     assert tr.position[300, 0] == pytest.approx(1.0 + 3.0 * 1e-3, rel=1e-12)
     assert tr.linear_velocity[301, 0] == pytest.approx(1e-3 + dt * 2.0 / 2.0, rel=1e-12)
@@ -166,10 +150,10 @@ def test_reproduces_matching_reference_map(variant, make_adapter):
     """Torque-free Dzhanibekov-like tumble: multibody = explicit gyro, maximal = implicit gyro."""
     R0 = matrix_from_quat(Q0)
     w0 = R0 @ _R_PRINCIPAL @ np.array([0.01, 5.0, 0.0])  # near the intermediate axis, world
-    pb = _problem(w0=w0, gravity=(0.0, 0.0, 0.0), duration=10.0)
+    pb = general_problem(w=w0, gravity=(0.0, 0.0, 0.0), duration=10.0)
     dt = 0.01
     n = pb.steps(dt)
-    tr = make_adapter(pb, dt, variant).simulate(n)
+    tr = make_adapter("pybullet", pb, dt, variant).simulate(n)
     ref = reference_simulate(pb, MATCHING_MAP[variant], dt, n)
     err = np.max(geodesic_angle(tr.quaternion_wxyz, ref.quaternion_wxyz))
     assert err < MAP_TOL, f"{variant}: max orientation difference {err:.3g} rad from {MATCHING_MAP[variant]}"
@@ -213,23 +197,23 @@ def test_loads_produce_the_expected_torque(variant, kind, make_adapter):
     says (multibody: the reference map; maximal: Bullet's rigid-body step, _maximal_map), and the
     load acts only on the steps it is on."""
     dt, n = 0.01, 20
-    pb = _problem(loads=(dataclasses.replace(LOAD_KINDS[kind], steps=5),))
-    tr = make_adapter(pb, dt, variant).simulate(n)
+    pb = general_problem(loads=(dataclasses.replace(LOAD_KINDS[kind], steps=5),))
+    tr = make_adapter("pybullet", pb, dt, variant).simulate(n)
     if variant == "multibody":
         ref = reference_simulate(pb, MATCHING_MAP[variant], dt, n)
         q_ref, w_ref = ref.quaternion_wxyz, ref.angular_velocity
-        free = reference_simulate(_problem(), MATCHING_MAP[variant], dt, 1)
+        free = reference_simulate(general_problem(), MATCHING_MAP[variant], dt, 1)
         q_free, w_free = free.quaternion_wxyz, free.angular_velocity
         assert np.max(np.abs(tr.position - ref.position)) < LOAD_TOL
         assert np.max(np.abs(tr.linear_velocity - ref.linear_velocity)) < LOAD_TOL
     else:
         q_ref, w_ref = _maximal_map(pb, dt, n)
-        q_free, w_free = _maximal_map(_problem(), dt, 1)
+        q_free, w_free = _maximal_map(general_problem(), dt, 1)
     L = angular_momentum(I_FULL, tr.quaternion_wxyz, tr.angular_velocity)
     L_ref = angular_momentum(I_FULL, q_ref, w_ref)
     err = np.max(np.abs(L - L_ref))
     assert err < LOAD_TOL, f"{variant}, {kind}: angular momentum off by {err:.3g} from its map"
-    assert np.max(geodesic_angle(tr.quaternion_wxyz, q_ref)) < LOAD_TOL
+    assert_same_rotation(tr.quaternion_wxyz, q_ref, LOAD_TOL)
     # Not vacuous: the first step's change of L against the free body is h tau (to O(h^2)).
     _, tau = pb.wrench(pb.active_loads(0, dt), pb.initial.position, pb.R0)
     L_free = angular_momentum(I_FULL, q_free[1], w_free[1])
@@ -241,8 +225,8 @@ def test_maximal_torque_differs_from_reference_placement(variant, make_adapter):
     """Documents the maximal map under a torque: its impulse h I^-1 tau is outside the implicit
     gyroscopic step, so ``semi-implicit-implicit-gyro`` (J^-1 h tau) is off by O(h^2)."""
     dt, n = 0.01, 20
-    pb = _problem(loads=(LOAD_KINDS["world torque"],))
-    tr = make_adapter(pb, dt, variant).simulate(n)
+    pb = general_problem(loads=(LOAD_KINDS["world torque"],))
+    tr = make_adapter("pybullet", pb, dt, variant).simulate(n)
     ref = reference_simulate(pb, MATCHING_MAP[variant], dt, n)
     err = np.max(geodesic_angle(tr.quaternion_wxyz, ref.quaternion_wxyz))
     if variant == "multibody":
@@ -259,9 +243,9 @@ def test_fast_single_axis_spin_not_clamped(variant, make_adapter):
     has turned by exactly 15 rad (a clamped spin would have turned 10 rad)."""
     dt, n, rate = 1e-3, 100, 150.0
     q0 = quat_from_rotvec([0.0, 0.0, 0.7])
-    pb = _problem(I=np.diag([1.0, 2.0, 3.0]), q0=q0, v0=(0, 0, 0), w0=(0.0, 0.0, rate),
-                  gravity=(0, 0, 0))
-    tr = make_adapter(pb, dt, variant).simulate(n)
+    pb = general_problem(I_body=np.diag([1.0, 2.0, 3.0]), q=q0, v=(0, 0, 0), w=(0.0, 0.0, rate),
+                         gravity=(0, 0, 0))
+    tr = make_adapter("pybullet", pb, dt, variant).simulate(n)
     exact = quat_multiply(quat_from_rotvec([0.0, 0.0, rate * n * dt]), q0)
     err = geodesic_angle(tr.quaternion_wxyz[-1], exact)
     assert err < SPIN_TOL, f"{variant}: orientation off by {err:.3g} rad after {rate * n * dt} rad"
@@ -278,9 +262,9 @@ def test_rotation_cap_per_step_documented(variant, make_adapter):
     (maybe fixed) the cap: update the adapter's conventions and engine-notes.md."""
     dt, rate = 1e-2, 150.0
     q0 = quat_from_rotvec([0.0, 0.0, 0.7])
-    pb = _problem(I=np.diag([1.0, 2.0, 3.0]), q0=q0, v0=(0, 0, 0), w0=(0.0, 0.0, rate),
-                  gravity=(0, 0, 0))
-    tr = make_adapter(pb, dt, variant).simulate(1)
+    pb = general_problem(I_body=np.diag([1.0, 2.0, 3.0]), q=q0, v=(0, 0, 0), w=(0.0, 0.0, rate),
+                         gravity=(0, 0, 0))
+    tr = make_adapter("pybullet", pb, dt, variant).simulate(1)
     exact = quat_multiply(quat_from_rotvec([0.0, 0.0, rate * dt]), q0)
     err = geodesic_angle(tr.quaternion_wxyz[1], exact)
     assert err > CAP_MIN_ERROR, (
@@ -294,8 +278,8 @@ def test_rotation_cap_per_step_documented(variant, make_adapter):
 
 
 def test_one_client_per_adapter_and_close(make_adapter):
-    a = make_adapter(_problem(), 0.01, "multibody")
-    b = make_adapter(_problem(w0=(0.0, 0.0, 0.0)), 0.01, "maximal")
+    a = make_adapter("pybullet", general_problem(), 0.01, "multibody")
+    b = make_adapter("pybullet", general_problem(w=(0.0, 0.0, 0.0)), 0.01, "maximal")
     assert a._cid != b._cid
     cid = a._cid
     a.close()
@@ -311,7 +295,7 @@ def test_flat_sample_list_converts_to_the_engine_state(variant, make_adapter):
     frame), every array is C-contiguous, and t continues from the current step."""
     loads = (Load(force=(1.0, 2.0, -3.0), body_point=(0.3, -0.1, 0.2), start=0.02, steps=3),
              Load(body_torque=(0.5, -1.0, 2.0), torque=(0.1, 0.0, 0.0), start=0.05))
-    a = make_adapter(_problem(loads=loads), 0.01, variant)
+    a = make_adapter("pybullet", general_problem(loads=loads), 0.01, variant)
     first = a.advance(4)
     tr = a.advance(6)
     assert a.k == 10 and len(tr) == 7
@@ -332,9 +316,9 @@ def test_flat_sample_list_converts_to_the_engine_state(variant, make_adapter):
 def test_bare_loop_steps_the_adapters_world(variant, make_adapter):
     """bare_loop (freebody bench): PyBullet's own step and getters on the adapter's client and
     body, giving the states advance() records for a load-free body."""
-    pb = _problem()
-    P, V = make_adapter(pb, 0.01, variant).bare_loop(5)()
-    tr = make_adapter(pb, 0.01, variant).simulate(5)
+    pb = general_problem()
+    P, V = make_adapter("pybullet", pb, 0.01, variant).bare_loop(5)()
+    tr = make_adapter("pybullet", pb, 0.01, variant).simulate(5)
     assert len(P) == len(V) == 6
     np.testing.assert_array_equal([p for p, _ in P], tr.position)
     np.testing.assert_array_equal([v for v, _ in V], tr.linear_velocity)

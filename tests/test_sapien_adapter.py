@@ -37,11 +37,12 @@ from freebody.reference_impl import engine_maps as E  # noqa: E402
 from freebody.reference_impl.conventions import angular_momentum  # noqa: E402
 from freebody.reference_impl.dynamics import wrench_function  # noqa: E402
 from freebody.reference_impl.integrators import simulate  # noqa: E402
-from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
+from freebody.reference_impl.problem import Load, Problem  # noqa: E402
 from freebody.reference_impl.rotations import (geodesic_angle, matrix_from_quat,  # noqa: E402
                                                quat_conjugate, quat_from_matrix, quat_from_rotvec,
                                                quat_multiply)
 from freebody.run.selfcheck import run_trap_checks  # noqa: E402
+from freebody.testing import I_FULL, assert_same_rotation, general_problem, make_adapter  # noqa: E402
 
 SOLVERS = ("tgs", "pgs")
 MAP = "explicit-gyro-rescaled-momentum"
@@ -71,29 +72,8 @@ TGS_DRIFT_MIN, PGS_DRIFT_MAX = 2e-7, 2e-8
 # change (the gyroscopic change here is 1.6e-2 relative).
 GYRO_STEP_RTOL = {"pgs": 1e-6, "tgs": 1e-5}
 
-_R_PRINCIPAL = matrix_from_quat(quat_from_rotvec([0.4, -0.7, 0.2]))  # principal axes in the body
-I_FULL = _R_PRINCIPAL @ np.diag([1.0, 2.0, 3.0]) @ _R_PRINCIPAL.T   # non-diagonal, kg m^2
-Q0 = quat_from_rotvec([0.9, 0.3, -1.1])
-
-
-def _problem(I=I_FULL, q0=Q0, x0=(1.0, -2.0, 3.0), v0=(0.3, -0.2, 0.5), w0=(0.7, -2.0, 1.3),
-             gravity=(0.0, 0.0, -9.81), loads=(), duration=1.0, mass=2.0) -> Problem:
-    return Problem("sapien-test", "", Body(mass, I), InitialState(x0, q0, v0, w0), gravity, loads,
-                   duration=duration)
-
-
-@pytest.fixture
-def make_adapter():
-    made = []
-
-    def make(problem, dt, integrator):
-        a = SapienAdapter(problem, dt, integrator, "float32")
-        made.append(a)
-        return a
-
-    yield make
-    for a in made:
-        a.close()
+# The body: freebody.testing's general problem (I_FULL, diag(1, 2, 3) in rotated principal
+# axes, 2 kg, rotated, offset, moving); adapters from its make_adapter fixture.
 
 
 def _raw_body(dt=0.01, gravity=(0.0, 0.0, 0.0), tgs=True, moments=(1.0, 2.0, 3.0)):
@@ -213,7 +193,7 @@ def test_system_config_gravity_is_a_copy():
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_settings_read_back(solver, make_adapter):
     dt, g = 0.005, (0.1, -0.2, -9.81)
-    a = make_adapter(_problem(gravity=g), dt, solver)
+    a = make_adapter("sapien", general_problem(gravity=g), dt, solver)
     system, body = a._system, a._body
     assert system.config.enable_tgs is (solver == "tgs")
     assert system.timestep == float(F32(dt))
@@ -221,7 +201,7 @@ def test_settings_read_back(solver, make_adapter):
     assert body.mass == 2.0 and body.auto_compute_mass is False
     moments, V, q_V = E.physx_principal_frame(I_FULL)
     np.testing.assert_allclose(body.inertia, moments, rtol=READBACK_RTOL)
-    assert geodesic_angle(np.asarray(body.cmass_local_pose.q, float), q_V) < READBACK_RTOL
+    assert_same_rotation(np.asarray(body.cmass_local_pose.q, float), q_V, READBACK_RTOL)
     assert not np.any(body.cmass_local_pose.p)
     assert (body.linear_damping, body.angular_damping, body.sleep_threshold) == (0.0, 0.0, 0.0)
     assert body.max_angular_velocity == float(F32(SA.MAX_ANGULAR_VELOCITY))
@@ -248,11 +228,11 @@ def test_solver_iterations_change_nothing_for_a_lone_body(make_adapter):
     """Without constraints PhysX integrates once with the whole dt (TGS substeps only constraints),
     so the adapter leaves SAPIEN's 10 position and 1 velocity iterations: other counts give the
     same trajectory bit for bit."""
-    pb = _problem(loads=(Load(force=(1.0, 2.0, -3.0), body_point=(0.3, -0.1, 0.2), steps=5),))
+    pb = general_problem(loads=(Load(force=(1.0, 2.0, -3.0), body_point=(0.3, -0.1, 0.2), steps=5),))
     for solver in SOLVERS:
         runs = []
         for counts in ((10, 1), (1, 0), (50, 8)):
-            a = make_adapter(pb, 0.01, solver)
+            a = make_adapter("sapien", pb, 0.01, solver)
             a._body.set_solver_position_iterations(counts[0])
             a._body.set_solver_velocity_iterations(counts[1])
             runs.append(a.simulate(30))
@@ -264,11 +244,11 @@ def test_solver_iterations_change_nothing_for_a_lone_body(make_adapter):
 
 def test_probe_step_leaves_no_trace(make_adapter, monkeypatch):
     """build()'s probe step, then the initial state set again: the run is the run without it."""
-    pb = _problem(loads=(Load(torque=(0.5, -1.0, 2.0), steps=3),))
-    with_probe = {s: make_adapter(pb, 0.01, s).simulate(40) for s in SOLVERS}
+    pb = general_problem(loads=(Load(torque=(0.5, -1.0, 2.0), steps=3),))
+    with_probe = {s: make_adapter("sapien", pb, 0.01, s).simulate(40) for s in SOLVERS}
     monkeypatch.setattr(SapienAdapter, "_probe", lambda self: None)
     for s in SOLVERS:
-        without = make_adapter(pb, 0.01, s).simulate(40)
+        without = make_adapter("sapien", pb, 0.01, s).simulate(40)
         np.testing.assert_array_equal(without.quaternion_wxyz, with_probe[s].quaternion_wxyz)
         np.testing.assert_array_equal(without.angular_velocity, with_probe[s].angular_velocity)
         np.testing.assert_array_equal(without.linear_velocity, with_probe[s].linear_velocity)
@@ -318,7 +298,7 @@ def test_trap_check_fails_when_the_adapter_stops_handling_it(check, monkeypatch)
     monkeypatch.setattr(SA, name, value)
     if probe_catches:  # (a gravity other than SAPIEN's default, or the naive way would pass)
         with pytest.raises(RuntimeError, match="did not take effect"):
-            SapienAdapter(_problem(gravity=(0.5, -1.0, -3.0)), 0.01, "tgs", "float32")
+            SapienAdapter(general_problem(gravity=(0.5, -1.0, -3.0)), 0.01, "tgs", "float32")
     monkeypatch.setattr(SapienAdapter, "_probe", lambda self: None)
     passed, value_measured, bound, detail = SapienAdapter.trap_checks()[check]()
     assert not passed, f"{check} still passes with {name} = {value!r}: {detail}"
@@ -341,9 +321,9 @@ def test_improper_principal_frame_is_made_proper():
         np.testing.assert_allclose(V @ np.diag(moments) @ V.T, I_b, atol=1e-14)
         np.testing.assert_allclose(matrix_from_quat(q_V), V, atol=1e-14)
         if found == 1:
-            a = SapienAdapter(_problem(I=I_b), 0.01, "pgs", "float32")
+            a = SapienAdapter(general_problem(I_body=I_b), 0.01, "pgs", "float32")
             try:
-                assert geodesic_angle(np.asarray(a._body.cmass_local_pose.q, float), q_V) < READBACK_RTOL
+                assert_same_rotation(np.asarray(a._body.cmass_local_pose.q, float), q_V, READBACK_RTOL)
             finally:
                 a.close()
     assert found > 10  # not vacuous
@@ -352,7 +332,7 @@ def test_improper_principal_frame_is_made_proper():
 def test_diagonal_inertia_keeps_its_frame(make_adapter):
     """A diagonal I_body is given as it is, in its own order, with cmass_local_pose identity (no
     eigen-decomposition to round or reorder it)."""
-    a = make_adapter(_problem(I=np.diag([3.0, 1.0, 2.0])), 0.01, "tgs")
+    a = make_adapter("sapien", general_problem(I_body=np.diag([3.0, 1.0, 2.0])), 0.01, "tgs")
     np.testing.assert_array_equal(a._body.inertia, F32([3.0, 1.0, 2.0]))
     assert a.settings["cmass_local_pose"]["set"] == [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]]
 
@@ -365,12 +345,13 @@ def test_full_inertia_moves_as_the_rotated_diagonal_body(solver, make_adapter):
     Q = matrix_from_quat(quat_from_rotvec([0.3, -1.2, 0.7]))
     q_p = quat_from_rotvec([0.4, 0.2, -0.1])
     w0 = (0.3, 2.0, -0.4)
-    diag = _problem(I=np.diag([1.0, 2.0, 3.0]), q0=q_p, w0=w0, duration=2.0)
-    full = _problem(I=Q.T @ np.diag([1.0, 2.0, 3.0]) @ Q, q0=quat_from_matrix(matrix_from_quat(q_p) @ Q),
-                    w0=w0, duration=2.0)
-    a, b = make_adapter(diag, 0.01, solver).simulate(200), make_adapter(full, 0.01, solver).simulate(200)
+    diag = general_problem(I_body=np.diag([1.0, 2.0, 3.0]), q=q_p, w=w0, duration=2.0)
+    full = general_problem(I_body=Q.T @ np.diag([1.0, 2.0, 3.0]) @ Q,
+                           q=quat_from_matrix(matrix_from_quat(q_p) @ Q), w=w0, duration=2.0)
+    a = make_adapter("sapien", diag, 0.01, solver).simulate(200)
+    b = make_adapter("sapien", full, 0.01, solver).simulate(200)
     back = quat_multiply(b.quaternion_wxyz, quat_from_matrix(Q.T))
-    assert np.max(geodesic_angle(a.quaternion_wxyz, back)) < tol.SAPIEN_TRAP_FULL_INERTIA_RAD
+    assert_same_rotation(a.quaternion_wxyz, back, tol.SAPIEN_TRAP_FULL_INERTIA_RAD)
     L_a = angular_momentum(diag.body.I_body, a.quaternion_wxyz, a.angular_velocity)
     L_b = angular_momentum(full.body.I_body, b.quaternion_wxyz, b.angular_velocity)
     assert np.max(np.abs(L_a - L_b)) < tol.SAPIEN_TRAP_FULL_INERTIA_RAD * np.linalg.norm(L_a[0])
@@ -387,18 +368,18 @@ def test_loads_follow_the_map(solver, kind, make_adapter):
     state follows the float64 map (loads evaluated at the step's start, as the adapter applies
     them) to float32 round-off, and the first step changes L by h tau against the unloaded body."""
     dt, n = 0.01, 20
-    pb = _problem(loads=(dataclasses.replace(LOAD_KINDS[kind], steps=5),))
-    tr = make_adapter(pb, dt, solver).simulate(n)
+    pb = general_problem(loads=(dataclasses.replace(LOAD_KINDS[kind], steps=5),))
+    tr = make_adapter("sapien", pb, dt, solver).simulate(n)
     ref = simulate(pb, MAP, dt, n)
     tol_ = LOAD_MAP_TOL[solver]
-    assert np.max(geodesic_angle(tr.quaternion_wxyz, ref.quaternion_wxyz)) < tol_
+    assert_same_rotation(tr.quaternion_wxyz, ref.quaternion_wxyz, tol_)
     L = angular_momentum(I_FULL, tr.quaternion_wxyz, tr.angular_velocity)
     L_ref = angular_momentum(I_FULL, ref.quaternion_wxyz, ref.angular_velocity)
     assert np.max(np.abs(L - L_ref)) < tol_ * np.max(np.abs(L_ref))
     v_scale = np.max(np.abs(ref.linear_velocity))
     assert np.max(np.abs(tr.linear_velocity - ref.linear_velocity)) < tol_ * v_scale
     assert np.max(np.abs(tr.position - ref.position)) < tol_ * np.max(np.abs(ref.position))
-    free = make_adapter(_problem(), dt, solver).simulate(1)
+    free = make_adapter("sapien", general_problem(), dt, solver).simulate(1)
     L_free = angular_momentum(I_FULL, free.quaternion_wxyz, free.angular_velocity)
     _, tau = pb.wrench(pb.active_loads(0, dt), pb.initial.position, pb.R0)
     if np.any(tau):
@@ -470,8 +451,8 @@ def test_solvers_follow_the_map_to_float32_roundoff(case, make_adapter):
     nearest = simulate(pb, "semi-implicit-explicit-gyro", dt, n).quaternion_wxyz
     other = float(np.max(geodesic_angle(nearest, ref)))
     yardstick = float(np.max(geodesic_angle(_map_float32(pb, dt, n), ref)))
-    pgs = float(np.max(geodesic_angle(make_adapter(pb, dt, "pgs").simulate(n).quaternion_wxyz, ref)))
-    tgs = float(np.max(geodesic_angle(make_adapter(pb, dt, "tgs").simulate(n).quaternion_wxyz, ref)))
+    pgs = float(np.max(geodesic_angle(make_adapter("sapien", pb, dt, "pgs").simulate(n).quaternion_wxyz, ref)))
+    tgs = float(np.max(geodesic_angle(make_adapter("sapien", pb, dt, "tgs").simulate(n).quaternion_wxyz, ref)))
     assert pgs <= PGS_VS_FLOAT32_MAP * yardstick, (pgs, yardstick)
     assert tgs <= TGS_VS_OTHER_MAP * other, (tgs, other)
     assert other > 100 * pgs  # the maps are told apart on this case
@@ -484,8 +465,8 @@ def test_tgs_drift_of_a_steady_spin_documented(solver, make_adapter):
     axis.  If this fails, PhysX changed: update tolerances.SAPIEN_TGS_SPIN_DRIFT_PER_STEP and the
     adapter's docs."""
     n = 1000
-    pb = _problem(I=np.eye(3), q0=(1.0, 0.0, 0.0, 0.0), w0=(15.0, 0.0, 0.0), gravity=(0, 0, 0), duration=10.0)
-    w = np.linalg.norm(make_adapter(pb, 0.01, solver).simulate(n).angular_velocity, axis=1)
+    pb = general_problem(I_body=np.eye(3), q=(1.0, 0.0, 0.0, 0.0), w=(15.0, 0.0, 0.0), gravity=(0, 0, 0), duration=10.0)
+    w = np.linalg.norm(make_adapter("sapien", pb, 0.01, solver).simulate(n).angular_velocity, axis=1)
     per_step = (w[-1] / w[0]) ** (1.0 / n) - 1.0
     if solver == "tgs":
         assert TGS_DRIFT_MIN <= per_step <= tol.SAPIEN_TGS_SPIN_DRIFT_PER_STEP, per_step
@@ -501,7 +482,7 @@ def test_pack_rows_are_the_engine_state(solver, make_adapter):
     arrays are C-contiguous float64, and t continues from the current step."""
     loads = (Load(force=(1.0, 2.0, -3.0), body_point=(0.3, -0.1, 0.2), start=0.02, steps=3),
              Load(body_torque=(0.5, -1.0, 2.0), torque=(0.1, 0.0, 0.0), start=0.05))
-    a = make_adapter(_problem(loads=loads), 0.01, solver)
+    a = make_adapter("sapien", general_problem(loads=loads), 0.01, solver)
     first = a.advance(4)
     tr = a.advance(6)
     assert a.k == 10 and len(tr) == 7
@@ -517,9 +498,9 @@ def test_pack_rows_are_the_engine_state(solver, make_adapter):
 
 
 def test_bare_loop_gives_the_states_of_a_load_free_run(make_adapter):
-    pb = _problem()
-    rows = make_adapter(pb, 0.01, "tgs").bare_loop(5)()
-    tr = make_adapter(pb, 0.01, "tgs").simulate(5)
+    pb = general_problem()
+    rows = make_adapter("sapien", pb, 0.01, "tgs").bare_loop(5)()
+    tr = make_adapter("sapien", pb, 0.01, "tgs").simulate(5)
     A = np.frombuffer(b"".join(rows), dtype="<f4").reshape(6, 13)
     np.testing.assert_array_equal(A[:, 0:4], tr.quaternion_wxyz)
     np.testing.assert_array_equal(A[:, 10:13], tr.angular_velocity)
