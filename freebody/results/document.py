@@ -6,29 +6,33 @@ results.json::
      "incomplete": false, "runs": [RunResult.to_json(), ...], ...}
 
 Schema 2 added each run's ``experiment`` (what was simulated: :mod:`freebody.run.experiment`)
-and, in ``cases``, the time steps and durations that ran.  Schema 1 documents (and baselines) are
-still read: their runs have no ``experiment``, and ``freebody compare`` then matches runs on their
-identity and steps and says that their content could not be checked.
+and, in ``cases``, the time steps and durations that ran (``ran``).  Schema 1 documents (and
+baselines) are still read: their runs' ``experiment`` is unknown (null after the migration), and
+``freebody compare`` then matches runs on their identity and steps and says that their content
+could not be checked.
 
 Schema 3 added, in ``cases``, ``defaults``: the optional case-file keys a case left out and so got
 by default (e.g. ``world.gravity``: no ``[world]``, no gravity), and engine names may carry a
 version (``mujoco==3.1.6``, an engine run in an isolated environment).  Schema 2 and 1 documents
-are still read (a case without ``defaults`` says nothing about them).
+are still read (their cases' ``defaults`` are unknown, null: they say nothing about them).
 
 Schema 4 (issue 26: verdicts that never mislead) added, per run, ``load_sampling`` (how the
 engine's step saw the loads: ``per-stage`` | ``per-step``, null without loads), ``state_growth``
 (how far |w| and the kinetic energy grew beyond the truth's, the blow-up time, the largest rotation
 per step and the engine's declared cap) and, in ``matches_reference``, ``verdict``
 (``reproduces`` | ``indistinguishable`` | ``closest`` | ``undecidable``) and ``undecidable``; in
-``cases``, ``state_dependent_loads``.  Older documents are migrated on load (:func:`migrate`): each
-run's ``matches_reference`` gets the verdict its other keys imply
-(:func:`freebody.results.identification.verdict`); the other new keys stay absent, and readers
-treat an absent key as unknown.
+``cases``, ``state_dependent_loads``.  On load, an older document's ``matches_reference`` gets the
+verdict its other keys imply (:func:`freebody.results.identification.implied_verdict`) and the
+other new keys are null (unknown).
 
 Schema 5 (issue 27: judging in one place) added, per run, ``judgement``: the facts its findings
 present (blow-up, rotation cap, the map it reproduces or comes closest to, saturation, its formal
 order; :mod:`freebody.results.judgement`), computed once when the run is recorded; an older
 document's runs get theirs on load from their stored fields, by the same function.
+
+Every document read is migrated on load (:func:`load_results` -> :func:`migrate`, one
+``_update_to_N`` per schema version, asv's ``update_to_N``), so that readers see the newest shape
+only; the keys it guarantees, and those that stay optional, are listed above :func:`_update_to_2`.
 
 Renamed reference integrators (``symplectic-euler`` is now ``lie-euler``) do not change the format
 and bump no schema version: every document read, of either version, has the old names replaced by
@@ -300,15 +304,88 @@ def check_results(doc, where: str) -> dict:
     return upgrade_names(migrate(doc))
 
 
-def _update_to_4(doc: dict) -> dict:
-    """Schema 3 -> 4: each run's ``matches_reference`` gets its ``verdict`` (derived from its
-    other keys, as those files' readers took them)."""
-    from .identification import verdict
+# --- migrations on load (asv's update_to_N) --------------------------------------------------------
+#
+# Every document read goes through :func:`load_results` (report, compare, baseline, run --baseline,
+# the Python API), which validates it and brings it to the newest shape: one step per schema version
+# (:data:`_MIGRATIONS`), then :func:`_complete`.  Readers (compare, verdict, report, findings) see
+# that shape only and index the keys it guarantees:
+#
+# - the document: ``schema_version`` (as written: it says what was written), ``engines`` ({} when
+#   absent), ``incomplete`` (False when absent), ``runs``; optional, also in the newest schema:
+#   ``cases`` and ``convergence`` (absent from an interrupted run's results), ``baseline``.
+# - every run: every key of :class:`freebody.run.records.RunResult` (:data:`RUN_DEFAULTS`, a key
+#   absent from the file gets its value there: None, {} or []; ``precision`` null or absent is
+#   "float64"; ``metrics``, ``engine_settings`` null are {}, ``engine_output`` null is []).  What
+#   an old file cannot carry is None, "unknown": ``experiment`` of a schema-1 run (compare then
+#   matches on steps and says that the content could not be checked), ``load_sampling`` and
+#   ``state_growth`` of a run written before schema 4.
+# - every ``matches_reference`` that is a dict: ``verdict`` (one of
+#   :data:`freebody.results.identification.VERDICTS`), ``integrator``, ``closest``,
+#   ``max_orientation_diff_rad``, ``indistinguishable`` and ``undecidable`` (lists), ``levels_rad``
+#   and ``ratios`` (objects, {} when the file has none); optional: ``candidates``,
+#   ``threshold_rad``, ``rule``.
+# - every entry of ``cases`` that is a dict: ``defaults`` (None: unknown, written before schema 3),
+#   ``ran`` (None before schema 2) and ``state_dependent_loads`` (None before schema 4).
+#
+# A step is idempotent (it fills what is absent), works on copies (the caller's dicts are not
+# modified) and ignores malformed parts that validation lets through.  Adding schema N is one step
+# ``_update_to_N`` and one line in _MIGRATIONS.
 
-    for r in doc.get("runs", []):
-        m = r.get("matches_reference") if isinstance(r, dict) else None
-        if isinstance(m, dict) and "verdict" not in m:
-            r["matches_reference"] = {**m, "verdict": verdict(m)}
+def _runs(doc: dict) -> list[dict]:
+    """The document's runs that are objects (copied in place in ``doc["runs"]`` by :func:`migrate`)."""
+    return [r for r in doc.get("runs") or [] if isinstance(r, dict)]
+
+
+def _judged(doc: dict) -> list[dict]:
+    """The ``matches_reference`` objects of the document's runs (copies, see :func:`migrate`)."""
+    return [r["matches_reference"] for r in _runs(doc) if isinstance(r.get("matches_reference"), dict)]
+
+
+def _case_records(doc: dict) -> list[dict]:
+    cases = doc.get("cases")
+    return [c for c in cases.values() if isinstance(c, dict)] if isinstance(cases, dict) else []
+
+
+def _update_to_2(doc: dict) -> dict:
+    """Schema 1 -> 2: a run's ``experiment`` is unknown (None); a case's ``ran`` (the time steps
+    and durations run) is unknown.  Identification then recorded no ties, levels or ratios: a
+    named map is its own tie, and the levels and ratios are empty."""
+    for r in _runs(doc):
+        r.setdefault("experiment", None)
+    for m in _judged(doc):
+        if "indistinguishable" not in m:
+            m["indistinguishable"] = [m["integrator"]] if isinstance(m.get("integrator"), str) else []
+        m.setdefault("levels_rad", {})
+        m.setdefault("ratios", {})
+    for c in _case_records(doc):
+        c.setdefault("ran", None)
+    return doc
+
+
+def _update_to_3(doc: dict) -> dict:
+    """Schema 2 -> 3: a case's ``defaults`` (the optional case-file keys it left out) are unknown."""
+    for c in _case_records(doc):
+        c.setdefault("defaults", None)
+    return doc
+
+
+def _update_to_4(doc: dict) -> dict:
+    """Schema 3 -> 4: each ``matches_reference`` gets the ``verdict`` its other keys imply (as
+    those files' readers took them: :func:`freebody.results.identification.implied_verdict`) and
+    ``undecidable`` [] (no map was found undecidable then); a run's ``load_sampling`` and
+    ``state_growth`` and a case's ``state_dependent_loads`` are unknown (None)."""
+    from .identification import implied_verdict
+
+    for r in _runs(doc):
+        r.setdefault("load_sampling", None)
+        r.setdefault("state_growth", None)
+    for m in _judged(doc):
+        if "verdict" not in m:
+            m["verdict"] = implied_verdict(m)
+        m.setdefault("undecidable", [])
+    for c in _case_records(doc):
+        c.setdefault("state_dependent_loads", None)
     return doc
 
 
@@ -317,23 +394,67 @@ def _update_to_5(doc: dict) -> dict:
     from its stored fields by the function the run layer calls when it records a run (map names
     brought up to date first, as every reader sees them), so an old document's findings are today's."""
     from .judgement import with_judgement
-
     doc = upgrade_names(doc)
     return {**doc, "runs": [with_judgement(r) for r in doc.get("runs", [])]}
 
 
-# One step per schema version (asv's update_to_N): step N brings a document of version N - 1 to N;
-# versions 1 -> 3 needed no step (their new keys are optional).
-_MIGRATIONS = {4: _update_to_4, 5: _update_to_5}
+# One step per schema version: step N brings a document of version N - 1 to N.
+_MIGRATIONS = {2: _update_to_2, 3: _update_to_3, 4: _update_to_4, 5: _update_to_5}
+
+# Every run key (RunResult.to_json) and its value when a file leaves it out (never for the five
+# REQUIRED_RUN_KEYS, checked on load).
+RUN_DEFAULTS = {"precision": "float64", "steps": None, "message": "", "truth": None, "metrics": {},
+                "final_state": None, "wall_time_s": None, "engine_version": None, "engine_settings": {},
+                "matches_reference": None, "diverged_at_s": None, "trajectory": None, "engine_output": [],
+                "vs_engine": None, "compile_time_s": None, "experiment": None, "state_growth": None,
+                "load_sampling": None, "judgement": None}
+_NULL_MEANS_DEFAULT = ("precision", "metrics", "engine_settings", "engine_output")
+
+
+def _complete(doc: dict) -> dict:
+    """The keys every document of the newest shape has (see above), filled where a file (of any
+    version: a hand-made one, a trimmed one) leaves them out."""
+    from .identification import VERDICTS, implied_verdict
+
+    doc.setdefault("engines", {})
+    doc.setdefault("incomplete", False)
+    for r in _runs(doc):
+        for k, v in RUN_DEFAULTS.items():
+            if k not in r or (r[k] is None and k in _NULL_MEANS_DEFAULT):
+                r[k] = type(v)() if isinstance(v, (dict, list)) else v
+    for m in _judged(doc):
+        if m.get("verdict") not in VERDICTS:  # a hand-made file's: read as its other keys imply
+            m["verdict"] = implied_verdict(m)
+        for k in ("integrator", "closest", "max_orientation_diff_rad"):
+            m.setdefault(k, None)
+        for k in ("indistinguishable", "undecidable"):
+            m.setdefault(k, [])
+        for k in ("levels_rad", "ratios"):
+            m.setdefault(k, {})
+    return doc
+
+
+def _copied(doc: dict) -> dict:
+    """A copy of ``doc`` whose runs, their ``matches_reference``, ``cases`` and case records are
+    copies too: the parts the migration steps fill in."""
+    out = dict(doc)
+    if isinstance(doc.get("runs"), list):
+        out["runs"] = [{**r, "matches_reference": dict(r["matches_reference"])}
+                       if isinstance(r, dict) and isinstance(r.get("matches_reference"), dict)
+                       else dict(r) if isinstance(r, dict) else r for r in doc["runs"]]
+    if isinstance(doc.get("cases"), dict):
+        out["cases"] = {k: dict(c) if isinstance(c, dict) else c for k, c in doc["cases"].items()}
+    return out
 
 
 def migrate(doc: dict) -> dict:
-    """``doc`` brought up to :data:`SCHEMA_VERSION`, one step per version it is behind (its
-    ``schema_version`` is kept: it says what was written)."""
-    v = doc.get("schema_version")
-    for target in range(int(v) + 1, SCHEMA_VERSION + 1):
-        doc = _MIGRATIONS.get(target, lambda d: d)(doc)
-    return doc
+    """A copy of ``doc`` in the newest shape: one step of :data:`_MIGRATIONS` per version it is
+    behind, then the keys every document has (:func:`_complete`).  Its ``schema_version`` is kept
+    (it says what was written); ``doc`` itself is not modified."""
+    doc = _copied(doc)
+    for target in range(int(doc["schema_version"]) + 1, SCHEMA_VERSION + 1):
+        doc = _MIGRATIONS[target](doc)
+    return _complete(doc)
 
 
 # The fields of a run's matches_reference that hold a reference map's name, a list of them, an
@@ -405,12 +526,6 @@ def upgrade_names(doc: dict, aliases: dict[str, str] | None = None) -> dict:
         if isinstance(entries, list) and any(isinstance(e, dict) and stale(e) for e in entries):
             out = dict(out) if out is doc else out
             out[key] = [upgraded(e) if isinstance(e, dict) and stale(e) else e for e in entries]
-    return out
-
-    out = dict(doc)
-    for key in ("runs", "convergence"):
-        if isinstance(doc.get(key), list):
-            out[key] = [entry(e) if isinstance(e, dict) else e for e in doc[key]]
     return out
 
 

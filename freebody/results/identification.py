@@ -1,8 +1,8 @@
 """Reading a run's scheme identification (results.json ``matches_reference``, written by
 :func:`freebody.run.judge.identify`): its verdict and the words every reader prints for it.
 
-The verdict (``matches_reference["verdict"]``, optional: results written before it was recorded
-have none, and it is derived from their other keys by :func:`verdict`):
+The verdict (``matches_reference["verdict"]``; results written before schema 4 have none, and
+the migration on load gives them the one their other keys imply, :func:`implied_verdict`):
 
 - ``reproduces``: one map is within its round-off level of the run and no other map is nearer by
   more than round-off (``integrator``, ``indistinguishable`` == [integrator]);
@@ -27,14 +27,15 @@ def _names(x) -> list[str]:
 
 def verdict(m: dict | None) -> str | None:
     """The verdict of a ``matches_reference`` dict (None when there is none: a reference run, a
-    run that was not judged).  Without a ``verdict`` key (results written before it): a map named
-    in ``integrator`` is reproduced (indistinguishable with two or more maps in the tie), else a
-    ``closest`` map is the closest, else nothing could be decided."""
-    if not isinstance(m, dict):
-        return None
-    v = m.get("verdict")
-    if v in VERDICTS:
-        return v
+    run that was not judged)."""
+    return m["verdict"] if isinstance(m, dict) else None
+
+
+def implied_verdict(m: dict) -> str:
+    """The verdict a ``matches_reference`` written before schema 4 (without ``verdict``) implies, as
+    its readers took it (used by the migration on load, :mod:`freebody.results.document`): a map
+    named in ``integrator`` is reproduced (indistinguishable with two or more maps in the tie),
+    else a ``closest`` map is the closest, else nothing could be decided."""
     if isinstance(m.get("integrator"), str):
         return INDISTINGUISHABLE if len(_names(m.get("indistinguishable"))) >= 2 else REPRODUCES
     return CLOSEST if isinstance(m.get("closest"), str) else UNDECIDABLE
@@ -45,8 +46,8 @@ def reproduced(m: dict | None) -> tuple[str, ...]:
     reproduces none (closest, undecidable, not judged)."""
     if verdict(m) not in (REPRODUCES, INDISTINGUISHABLE):
         return ()
-    tie = _names(m.get("indistinguishable"))
-    return tuple(tie) if tie else ((m["integrator"],) if isinstance(m.get("integrator"), str) else ())
+    tie = _names(m["indistinguishable"])
+    return tuple(tie) if tie else ((m["integrator"],) if isinstance(m["integrator"], str) else ())
 
 
 def tie_text(maps: tuple[str, ...] | list[str], precision: str | None = "float64") -> str:
@@ -66,13 +67,13 @@ def text(m: dict | None, precision: str | None = "float64", diff_format: str = "
     v = verdict(m)
     if v is None:
         return ""
-    d = m.get("max_orientation_diff_rad")
+    d = m["max_orientation_diff_rad"]
     dist = f"{d:{diff_format}} rad" if isinstance(d, (int, float)) else "- rad"
     if v in (REPRODUCES, INDISTINGUISHABLE):
         return tie_text(reproduced(m), precision)
-    closest = m.get("closest") if isinstance(m.get("closest"), str) else None
+    closest = m["closest"] if isinstance(m["closest"], str) else None
     if v == CLOSEST and closest:
-        r = (m.get("ratios") or {}).get(closest)
+        r = m["ratios"].get(closest)
         ratio = f", {r:.2g} x its round-off level" if isinstance(r, (int, float)) else ""
         return f"closest: {closest} ({dist}{ratio})"
     return f"undecidable here (closest {closest}, {dist})" if closest else "undecidable here"
