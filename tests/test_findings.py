@@ -36,10 +36,11 @@ def match(reproduces: str | None, closest: str | None = None, distance: float = 
     candidates[best] = distance
     for m in tie:
         candidates[m] = distance
-    return {"integrator": reproduces, "closest": best, "max_orientation_diff_rad": distance,
+    verdict = ("indistinguishable" if tie else "reproduces") if reproduces else "closest"
+    return {"verdict": verdict, "integrator": reproduces, "closest": best, "max_orientation_diff_rad": distance,
             "threshold_rad": LEVEL, "indistinguishable": ([reproduces, *tie] if reproduces else []),
             "candidates": candidates, "levels_rad": {m: LEVEL for m in MAPS},
-            "ratios": {m: v / LEVEL for m, v in candidates.items()}, "rule": "(test)"}
+            "ratios": {m: v / LEVEL for m, v in candidates.items()}, "rule": "(test)", "undecidable": []}
 
 
 def run(engine: str, integrator: str, case: str = "c", dt: float = 0.01, error: float = 1e-3,

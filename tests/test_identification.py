@@ -459,13 +459,14 @@ def test_a_float32_drift_is_not_taken_for_a_scheme():
 
 
 def test_results_without_a_verdict_still_read():
-    """Results written before the verdict key: derived from integrator, tie and closest."""
+    """Results written before the verdict key: derived from integrator, tie and closest (by the
+    migration on load, tests/test_migrations.py)."""
     from freebody.results import identification as ident
 
-    assert ident.verdict({"integrator": "rk4", "indistinguishable": ["rk4"], "closest": "rk4"}) == "reproduces"
-    assert ident.verdict({"integrator": "rk4", "indistinguishable": ["rk4", "lie-euler"]}) == "indistinguishable"
-    assert ident.verdict({"integrator": None, "closest": "rk4", "indistinguishable": []}) == "closest"
-    assert ident.verdict({"integrator": None, "closest": None}) == "undecidable"
+    assert ident.implied_verdict({"integrator": "rk4", "indistinguishable": ["rk4"], "closest": "rk4"}) == "reproduces"
+    assert ident.implied_verdict({"integrator": "rk4", "indistinguishable": ["rk4", "lie-euler"]}) == "indistinguishable"
+    assert ident.implied_verdict({"integrator": None, "closest": "rk4", "indistinguishable": []}) == "closest"
+    assert ident.implied_verdict({"integrator": None, "closest": None}) == "undecidable"
     assert ident.verdict(None) is None
     assert ident.reproduced({"verdict": "closest", "integrator": None, "closest": "rk4"}) == ()
 
