@@ -151,6 +151,23 @@ class Trajectory:
                      self.linear_velocity[k].copy(), self.angular_velocity[k].copy())
 
     @classmethod
+    def on_grid(cls, k0: int, dt: float, position: np.ndarray, quaternion_wxyz: np.ndarray,
+                linear_velocity: np.ndarray, angular_velocity: np.ndarray) -> "Trajectory":
+        """N samples of a fixed-step run at t_i = (k0 + i) dt, i = 0 .. N - 1 (what an engine
+        adapter's ``advance`` returns: its first sample is step k0's state).
+
+        k0 : int, the step index of the first sample.  dt : float, s.
+        position, quaternion_wxyz, linear_velocity, angular_velocity : array_like, shapes (N, 3),
+            (N, 4), (N, 3), (N, 3), already in the canonical convention (see the module
+            docstring); stored as C-contiguous float64 arrays, copied only when they are not
+            already (a column slice of an engine's state rows is copied; an array that is
+            already one is kept as it is, so pass one the adapter does not write again).
+        """
+        arrays = [np.ascontiguousarray(a, dtype=np.float64)
+                  for a in (position, quaternion_wxyz, linear_velocity, angular_velocity)]
+        return cls((k0 + np.arange(len(arrays[0]))) * dt, *arrays)
+
+    @classmethod
     def empty(cls, n: int, with_orthonormality: bool = False) -> "Trajectory":
         """Preallocated arrays for n samples (filled with NaN until written)."""
         nan = np.full
@@ -188,10 +205,6 @@ class Trajectory:
         """The same samples without the matrix integrators' orthonormality error (as truths have)."""
         return Trajectory(self.t, self.position, self.quaternion_wxyz, self.linear_velocity,
                           self.angular_velocity)
-
-    def thinned(self, every: int) -> "Trajectory":
-        """Every ``every``-th sample, always keeping the last."""
-        return self.take(np.unique(np.r_[np.arange(0, len(self.t), every), len(self.t) - 1]))
 
     def take(self, idx: np.ndarray) -> "Trajectory":
         """The samples at the indices ``idx`` (ascending ints, shape (K,)), copies."""
