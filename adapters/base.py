@@ -19,9 +19,9 @@ from typing import Callable, ClassVar, Iterator, NamedTuple
 
 import numpy as np
 
-from ..reference_impl.conventions import Trajectory
-from ..reference_impl.problem import Problem
-from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE, LOAD_SAMPLING_PER_STEP, LOAD_SAMPLINGS
+from freebody.reference_impl.conventions import Trajectory
+from freebody.reference_impl.problem import Problem
+from freebody.reference_impl.sampling import LOAD_SAMPLING_PER_STAGE, LOAD_SAMPLING_PER_STEP, LOAD_SAMPLINGS
 from .capture import capture_output
 from .loads import LoadSchedule, Segment
 

@@ -113,16 +113,23 @@ from brax.positional import pipeline as _positional
 from brax.spring import joints as _spring_joints
 from brax.spring import pipeline as _spring
 
-from ..reference_impl.conventions import Trajectory, angular_velocity_body_from_world
-from ..reference_impl.integrators import simulate
-from ..reference_impl.problem import Body, InitialState, Load, Problem
-from ..reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_from_matrix, quat_from_rotvec,
-                                        quat_multiply)
-from .. import tolerances as tol
+from freebody.reference_impl.conventions import Trajectory, angular_velocity_body_from_world
+from freebody.reference_impl.integrators import simulate
+from freebody.reference_impl.problem import Body, InitialState, Load, Problem
+from freebody.reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_from_matrix,
+                                               quat_from_rotvec, quat_multiply)
 from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP
-from .mjx_adapter import (_ROW, _SPARSITY_FIELDS, _compiled, _current_x64, _full_pattern, _load_rows,
-                          _quat_matrix, _x64)
-from .mujoco_adapter import _alignfree_default, _fmt, _inertial_element, _trajectory
+from .jax_runtime import LOAD_ROW, compiled, current_x64, load_rows, quat_matrix, x64_scope
+from .mjcf import alignfree_default, format_floats, free_joint_trajectory, inertial_element
+from .mjx_adapter import full_pattern
+
+# --- this adapter's tolerances, each with its reason (the harness's rules: freebody/tolerances.py;
+# the trap checks' bounds are with the trap checks below) ---------------------------------------
+# Brax (JAX; float32 or float64).  Mass and the inertia tensor rebuilt from Brax's principal moments
+# and frame (MuJoCo's compiler's diagonalisation) against the case's, relative to max(1, |value|):
+# measured <= 3.8e-15 (float64) and 9e-8 (float32) on 30 random full tensors; a dropped principal
+# frame or a geom's mass is O(1) off.
+BRAX_READBACK_RTOL = {"float64": 1e-12, "float32": 1e-6}
 
 PIPELINES: dict[str, object] = {"generalized": _generalized, "positional": _positional, "spring": _spring}
 # Each pipeline's engine-equivalent map (reference_impl/engine_maps.py): what scheme identification
@@ -207,14 +214,14 @@ def _external_force_hook(pipeline: str):
 def _mjcf(problem: Problem, dt: float, custom: bool = True) -> str:
     """The MJCF of one free body (see the module docstring); ``custom``: with the damping numerics."""
     body = problem.body
-    compiler = '<compiler alignfree="false"/>' if _alignfree_default() is not None else ""
-    numerics = (f'<custom><numeric name="ang_damping" data="{_fmt(ANG_DAMPING)}"/>'
-                f'<numeric name="vel_damping" data="{_fmt(VEL_DAMPING)}"/></custom>') if custom else ""
+    compiler = '<compiler alignfree="false"/>' if alignfree_default() is not None else ""
+    numerics = (f'<custom><numeric name="ang_damping" data="{format_floats(ANG_DAMPING)}"/>'
+                f'<numeric name="vel_damping" data="{format_floats(VEL_DAMPING)}"/></custom>') if custom else ""
     return (f'<mujoco model="freebody">{compiler}{numerics}'
-            f'<option timestep="{_fmt(dt)}" gravity="{_fmt(problem.gravity)}"/><worldbody>'
+            f'<option timestep="{format_floats(dt)}" gravity="{format_floats(problem.gravity)}"/><worldbody>'
             f'<body name="body" pos="0 0 0" quat="1 0 0 0"><freejoint name="free"/>'
-            f'{_inertial_element(body.mass, body.I_body)}'
-            f'<geom name="anchor" type="sphere" size="{_fmt(GEOM_RADIUS)}" contype="0" conaffinity="0"/>'
+            f'{inertial_element(body.mass, body.I_body)}'
+            f'<geom name="anchor" type="sphere" size="{format_floats(GEOM_RADIUS)}" contype="0" conaffinity="0"/>'
             f'</body></worldbody></mujoco>')
 
 
@@ -269,7 +276,7 @@ def _build(problem: Problem, dt: float, pipeline: str, precision: str, loaded: b
     """(System for stepping, initial State, settings, s spent compiling pipeline.init) inside the
     caller's x64 scope; every setting read back from the System."""
     dtype = _DTYPE[precision]
-    rtol = tol.BRAX_READBACK_RTOL[precision]
+    rtol = BRAX_READBACK_RTOL[precision]
     defaults = _brax_defaults()
     sys = _load_system(_mjcf(problem, dt))
     mj = sys.mj_model
@@ -304,10 +311,10 @@ def _build(problem: Problem, dt: float, pipeline: str, precision: str, loaded: b
     record("vel_damping", defaults["vel_damping"], float(sys.vel_damping))
     record("geom contype", defaults["geom contype"], int(mj.geom_contype[0]))
     record("geom conaffinity", defaults["geom conaffinity"], int(mj.geom_conaffinity[0]))
-    align = _alignfree_default()
+    align = alignfree_default()
     if align is not None:
         record("compiler.alignfree", align, False)
-    record("jax_enable_x64", bool(x64_default), _current_x64())
+    record("jax_enable_x64", bool(x64_default), current_x64())
     if settings["jax_enable_x64"]["set"] != (precision == "float64"):
         raise RuntimeError("the x64 scope did not take effect")
 
@@ -317,15 +324,15 @@ def _build(problem: Problem, dt: float, pipeline: str, precision: str, loaded: b
         init.quaternion_wxyz, init.angular_velocity)]), dtype=dtype)
     # one static structure for every body: the sparsity fields (read by MJX, never by these
     # pipelines) of a full-pattern model, no mj_model
-    stepped = sys.replace(mj_model=None, **{f: v for f, v in _full_pattern().items() if f in _SPARSITY_FIELDS})
+    stepped = sys.replace(mj_model=None, **full_pattern())
     if loaded and pipeline == "generalized":
         stepped = stepped.replace(actuator=_dof_actuators(dtype), nu=6)  # act_size() is nu
         probe = jnp.arange(1, 7, dtype=dtype)
         if not np.array_equal(np.asarray(_brax_actuator.to_tau(stepped, probe, q, qd)), np.asarray(probe)):
             raise RuntimeError("brax actuator.to_tau does not pass a per-dof actuator's input through")
         record("actuators", 0, 6)
-    init_fn, spent = _compiled(f"brax-init-{pipeline}", _init_jit(pipeline), precision, (stepped, q, qd),
-                               label=pipeline)
+    init_fn, spent = compiled(f"brax-init-{pipeline}", _init_jit(pipeline), precision, (stepped, q, qd),
+                              label=pipeline)
     return stepped, init_fn(stepped, q, qd), settings, spent
 
 
@@ -342,9 +349,9 @@ def _init_jit(pipeline: str):
 # --- the steps inside the scan ----------------------------------------------------------------------
 
 def _wrench(row, x, q):
-    """(force (3,) N world, torque about the COM (3,) N m world, R (3, 3)) of a load row (the MJX
-    adapter's layout, ``_ROW``) at COM position x and orientation q (w, x, y, z)."""
-    R = _quat_matrix(q)
+    """(force (3,) N world, torque about the COM (3,) N m world, R (3, 3)) of a load row (the layout
+    of ``jax_runtime.LOAD_ROW``, shared with MJX) at COM position x and orientation q (w, x, y, z)."""
+    R = quat_matrix(q)
     A = R @ row[12:21].reshape(3, 3)  # sum (R b_i) f_i^T
     tau = (row[3:6] + jnp.cross(row[6:9] - x, row[9:12])
            + jnp.stack([A[1, 2] - A[2, 1], A[2, 0] - A[0, 2], A[0, 1] - A[1, 0]]) + R @ row[21:24])
@@ -377,7 +384,7 @@ def _step(pipeline: str, loaded: bool, sys, st, row):
 
 
 def _chunk(pipeline: str, loaded: bool, sys, st, rows, n):
-    """Scan the pipeline's step over the first n of rows (C, _ROW); the C - n steps after them
+    """Scan the pipeline's step over the first n of rows (C, LOAD_ROW); the C - n steps after them
     leave the State as it is.  Returns (State after step n, q (C, 7), v (C, 6))."""
     def body(s, x):
         i, row = x
@@ -475,8 +482,8 @@ class BraxAdapter(Adapter):
                 f"{self.integrator}: its pipeline.step takes no external force and its free joint "
                 f"ignores generalized forces; freebody adds the wrench to the joint-update force "
                 f"only for the pipeline.step source it was checked against (brax 0.14.2)")
-        x64_default = _current_x64()
-        with _x64(self.precision == "float64"):
+        x64_default = current_x64()
+        with x64_scope(self.precision == "float64"):
             self._sys, self._state, settings, spent = _build(self.problem, self.dt, self.integrator,
                                                              self.precision, self._loaded, x64_default)
         self.settings.update(settings)
@@ -490,7 +497,7 @@ class BraxAdapter(Adapter):
         dtype, k0, pipeline = self._dtype, self.k, self.integrator
         Q = np.empty((steps + 1, 7))   # [x (3) m world, q (4) wxyz body -> world]
         V = np.empty((steps + 1, 6))   # [v (3) m/s world, w (3) rad/s: body (generalized) or world]
-        with _x64(self.precision == "float64"):
+        with x64_scope(self.precision == "float64"):
             q0, v0 = _read(pipeline, self._state)
             Q[0], V[0] = np.asarray(q0, dtype=np.float64), np.asarray(v0, dtype=np.float64)
             sys, state = self._sys, self._state
@@ -498,14 +505,14 @@ class BraxAdapter(Adapter):
             i = 0
             while i < steps:
                 n = min(CHUNK_STEPS, steps - i)
-                rows = np.zeros((CHUNK_STEPS, _ROW), dtype=dtype)
+                rows = np.zeros((CHUNK_STEPS, LOAD_ROW), dtype=dtype)
                 if self._loaded:
-                    rows[:n] = _load_rows(self.loads, k0 + i, k0 + i + n, dtype)
+                    rows[:n] = load_rows(self.loads, k0 + i, k0 + i + n, dtype)
                 args = (sys, state, jnp.asarray(rows), jnp.int32(n))
                 traced = _HOOK_CALLS[0]
                 with _external_force_hook(pipeline if self._loaded else ""):
-                    fn, spent = _compiled(f"brax-{pipeline}-{'loaded' if self._loaded else 'free'}", fn_jit,
-                                          self.precision, args, label=pipeline)
+                    fn, spent = compiled(f"brax-{pipeline}-{'loaded' if self._loaded else 'free'}", fn_jit,
+                                         self.precision, args, label=pipeline)
                 if spent and self._loaded and pipeline in _JOINT_FORCE and _HOOK_CALLS[0] - traced != 1:
                     raise RuntimeError(f"brax {pipeline}.step called its joint update "
                                        f"{_HOOK_CALLS[0] - traced} times while traced, not once: "
@@ -522,27 +529,25 @@ class BraxAdapter(Adapter):
         self._state = state
         self.k = k0 + steps
         if pipeline == "generalized":
-            return _trajectory(Q, V, self.dt, k0)
-        return Trajectory(t=(k0 + np.arange(steps + 1)) * self.dt, position=Q[:, 0:3].copy(),
-                          quaternion_wxyz=Q[:, 3:7].copy(), linear_velocity=V[:, 0:3].copy(),
-                          angular_velocity=V[:, 3:6].copy())
+            return free_joint_trajectory(Q, V, self.dt, k0)
+        return Trajectory.on_grid(k0, self.dt, Q[:, 0:3], Q[:, 3:7], V[:, 0:3], V[:, 3:6])
 
     def bare_loop(self, steps: int) -> Callable[[], object]:
         """For ``freebody bench``: Brax's compiled scans of ``steps`` steps from the current state
         (the step's loads included, their rows formed beforehand), outputs left as JAX arrays."""
         dtype, pipeline, precision = self._dtype, self.integrator, self.precision
         kind = f"brax-{pipeline}-{'loaded' if self._loaded else 'free'}"
-        with _x64(precision == "float64"):
+        with x64_scope(precision == "float64"):
             chunks = []
             for i in range(0, steps, CHUNK_STEPS):
                 n = min(CHUNK_STEPS, steps - i)
-                rows = np.zeros((CHUNK_STEPS, _ROW), dtype=dtype)
+                rows = np.zeros((CHUNK_STEPS, LOAD_ROW), dtype=dtype)
                 if self._loaded:
-                    rows[:n] = _load_rows(self.loads, self.k + i, self.k + i + n, dtype)
+                    rows[:n] = load_rows(self.loads, self.k + i, self.k + i + n, dtype)
                 chunks.append((jnp.asarray(rows), jnp.int32(n)))
             with _external_force_hook(pipeline if self._loaded else ""):
-                fn, _ = _compiled(kind, _chunk_jit(pipeline, self._loaded), precision,
-                                  (self._sys, self._state, *chunks[0]), label=pipeline) if chunks else (None, 0.0)
+                fn, _ = compiled(kind, _chunk_jit(pipeline, self._loaded), precision,
+                                 (self._sys, self._state, *chunks[0]), label=pipeline) if chunks else (None, 0.0)
         sys, state0 = self._sys, self._state
 
         def loop():
@@ -570,6 +575,31 @@ class BraxAdapter(Adapter):
 
 
 # --- trap checks (BraxAdapter.trap_checks) ------------------------------------------------------------
+
+# The adapter's live trap checks (BraxAdapter.trap_checks), float64 runs; measured values in
+# parentheses, the untreated trap's after the semicolon.
+# A rotated body spun about a body axis, every pipeline, 50 steps: w and orientation against the
+# spin about that world axis, rad (7.5e-13; w written in the wrong frame: 1.3).
+BRAX_TRAP_FRAME_RAD = 1e-9
+# spring, a moving spin about the major axis, 200 steps: relative change of |w| and |v| (0: Brax
+# multiplies them by exp(0 h) = 1 exactly; ang/vel_damping -0.05: 0.095).
+BRAX_TRAP_DAMPING_RTOL = 1e-12
+# diag(1, 2, 3) given as a rotated full tensor against the diagonal body, 100 steps at dt 0.01,
+# non-chaotic (2.9e-15; the diagonal part alone, or the body frame moved: O(1)).
+BRAX_TRAP_FULL_INERTIA_RAD = 1e-9
+# One 1 ms push at a body point from angular rest, every pipeline: |dL - h (R b) x f| / |h tau| and
+# |dp - h f| / |h f| (1.6e-7: the body turns during the step; an ignored load: 1).
+BRAX_TRAP_PUSH_RTOL = 1e-4
+# generalized, 200 steps of a tumbling body at dt 0.01 against its float64 map: the float64 run
+# (1.2e-15 rad) and the float32 one (7.3e-7 rad, float32 round-off: a float32 System) ...
+BRAX_TRAP_FLOAT64_RAD = 1e-11
+BRAX_TRAP_FLOAT32_MIN_RAD = 1e-9
+# ... spring and positional on dzhanibekov's body, 400 steps at dt 0.01: against their no-gyroscopic
+# maps (4.2e-13 rad) and the turn of their world w axis (2.4e-16), and how far they must stay from
+# the gyroscopic map semi-implicit-explicit-gyro (3.1 rad: the flip they never make).
+BRAX_TRAP_NO_GYRO_RAD = 1e-9
+BRAX_TRAP_GYRO_GAP_MIN_RAD = 0.1
+
 
 def _run(problem: Problem, dt: float, steps: int, pipeline: str, precision: str = "float64") -> Trajectory:
     adapter = BraxAdapter(problem, dt, pipeline, precision)
@@ -602,7 +632,7 @@ def _check_body_frame_w():
             exact = quat_multiply(quat_from_rotvec(np.outer(np.arange(steps + 1) * turn / rate, w0)), q0)
         angle_err = 0.0 if exact is None else float(np.max(geodesic_angle(exact, tr.quaternion_wxyz)))
         worst = max(worst, axis_err, angle_err)
-    bound = tol.BRAX_TRAP_FRAME_RAD
+    bound = BRAX_TRAP_FRAME_RAD
     return (worst <= bound, worst, bound,
             f"a rotated body spun about its body z axis (3 rad/s world), 0.5 s, every pipeline: its "
             f"w and orientation stay those of a spin about that world axis to {worst:.1e} (w in the "
@@ -619,7 +649,7 @@ def _check_damping():
     tr = _run(pb, dt, steps, "spring")
     err = max(float(np.max(np.abs(np.linalg.norm(tr.angular_velocity, axis=1) / 3.0 - 1.0))),
               float(np.max(np.abs(np.linalg.norm(tr.linear_velocity, axis=1) / np.linalg.norm(v0) - 1.0))))
-    bound = tol.BRAX_TRAP_DAMPING_RTOL
+    bound = BRAX_TRAP_DAMPING_RTOL
     return (err <= bound, err, bound,
             f"spring, a moving spin about the major axis, 2 s: |w| and |v| change by {err:.1e} "
             f"(relative; a damping of -0.05 would take 0.1)")
@@ -640,7 +670,7 @@ def _check_full_inertia():
     back = quat_multiply(b.quaternion_wxyz, quat_from_matrix(Q.T))
     err = max(float(np.max(geodesic_angle(a.quaternion_wxyz, back))),
               float(np.max(np.abs(a.angular_velocity - b.angular_velocity))) / np.linalg.norm(w0))
-    bound = tol.BRAX_TRAP_FULL_INERTIA_RAD
+    bound = BRAX_TRAP_FULL_INERTIA_RAD
     return (err <= bound, err, bound,
             f"diag(1, 2, 3) given as a rotated full tensor moves as given diagonal, 1 s at dt 0.01: "
             f"orientation (rad) and w (relative) differ by {err:.1e} (body frame moved to the "
@@ -666,7 +696,7 @@ def _check_loads():
         p = pb.body.mass * tr.linear_velocity[1]
         worst = max(worst, float(np.linalg.norm(L - want_L) / np.linalg.norm(want_L)),
                     float(np.linalg.norm(p - want_p) / np.linalg.norm(want_p)))
-    bound = tol.BRAX_TRAP_PUSH_RTOL
+    bound = BRAX_TRAP_PUSH_RTOL
     return (worst <= bound, worst, bound,
             f"one step (1 ms) of a force at a body point, every pipeline: p and L change by the "
             f"impulse to {worst:.1e} (relative; an ignored load: 1)")
@@ -682,10 +712,10 @@ def _check_precision():
     ref = simulate(pb, PIPELINE_MAPS["generalized"], dt, steps).quaternion_wxyz
     d64 = float(np.max(geodesic_angle(_run(pb, dt, steps, "generalized", "float64").quaternion_wxyz, ref)))
     d32 = float(np.max(geodesic_angle(_run(pb, dt, steps, "generalized", "float32").quaternion_wxyz, ref)))
-    ok = d64 <= tol.BRAX_TRAP_FLOAT64_RAD and d32 >= tol.BRAX_TRAP_FLOAT32_MIN_RAD
-    return (ok, d64, tol.BRAX_TRAP_FLOAT64_RAD,
+    ok = d64 <= BRAX_TRAP_FLOAT64_RAD and d32 >= BRAX_TRAP_FLOAT32_MIN_RAD
+    return (ok, d64, BRAX_TRAP_FLOAT64_RAD,
             f"generalized, 2 s at dt 0.01, against its float64 map: float64 run {d64:.1e} rad, "
-            f"float32 run {d32:.1e} rad (float32 must be >= {tol.BRAX_TRAP_FLOAT32_MIN_RAD:g}: the "
+            f"float32 run {d32:.1e} rad (float32 must be >= {BRAX_TRAP_FLOAT32_MIN_RAD:g}: the "
             f"x64 scope reached the run, and only the float64 one)")
 
 
@@ -708,8 +738,8 @@ def _check_no_gyroscopic_term():
         far = min(far, float(np.max(geodesic_angle(tr.quaternion_wxyz, gyro))))
         axes = tr.angular_velocity / np.linalg.norm(tr.angular_velocity, axis=1)[:, None]
         turned = max(turned, float(np.max(np.linalg.norm(axes - w0 / np.linalg.norm(w0), axis=1))))
-    bound = tol.BRAX_TRAP_NO_GYRO_RAD
-    ok = worst <= bound and turned <= bound and far >= tol.BRAX_TRAP_GYRO_GAP_MIN_RAD
+    bound = BRAX_TRAP_NO_GYRO_RAD
+    ok = worst <= bound and turned <= bound and far >= BRAX_TRAP_GYRO_GAP_MIN_RAD
     return (ok, worst, bound,
             f"dzhanibekov body, 4 s at dt 0.01: spring and positional reproduce semi-implicit-no-gyro(-"
             f"projected) to {worst:.1e} rad, their world w axis moves {turned:.1e} (no flip), and "

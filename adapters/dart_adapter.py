@@ -45,11 +45,18 @@ from typing import Callable, ClassVar
 import dartpy
 import numpy as np
 
-from ..reference_impl.conventions import Trajectory
-from ..reference_impl.rotations import matrix_from_quat, quat_from_rotvec
-from ..tolerances import DART_FRAME_PROBE_ATOL, DART_READBACK_RTOL
+from freebody.reference_impl.conventions import Trajectory
+from freebody.reference_impl.rotations import matrix_from_quat, quat_from_rotvec
 from .base import Adapter, EngineDiverged, LOAD_SAMPLING_PER_STAGE
 from .capture import FdCapture
+
+# --- this adapter's tolerances, each with its reason (the harness's rules: freebody/tolerances.py)
+# DART: relative tolerance for the values the adapter wrote (mass, inertia, pose, velocities,
+# gravity, time step), all copied or converted in float64.
+DART_READBACK_RTOL = 1e-9
+# DART: a probe state read back in DART's FreeJoint coordinates matches [log R; x] and [w; v] in
+# the right frame to round-off (max abs difference); the wrong frame differs by O(1).
+DART_FRAME_PROBE_ATOL = 1e-12
 
 _WORLD = dartpy.dynamics.Frame.World()
 
@@ -285,13 +292,12 @@ class DartAdapter(Adapter):
         with np.errstate(invalid="ignore", over="ignore"):
             quat = quat_from_rotvec(P[:, :3])
             if self._frames == "world":
-                w, v = V[:, :3].copy(), V[:, 3:].copy()
+                w, v = V[:, :3], V[:, 3:]  # copied by Trajectory.on_grid
             else:
                 R = matrix_from_quat(quat)
                 w = np.einsum("nij,nj->ni", R, V[:, :3])
                 v = np.einsum("nij,nj->ni", R, V[:, 3:])
-        return Trajectory(t=(k0 + np.arange(len(P))) * self.dt, position=P[:, 3:].copy(),
-                          quaternion_wxyz=quat, linear_velocity=v, angular_velocity=w)
+        return Trajectory.on_grid(k0, self.dt, P[:, 3:], quat, v, w)
 
 
 # --- helpers -----------------------------------------------------------------------------------

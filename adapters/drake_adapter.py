@@ -116,15 +116,24 @@ from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 from pydrake.systems.analysis import GetIntegrationSchemes, ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
 
-from ..reference_impl.conventions import Trajectory
-from ..reference_impl.problem import Body, InitialState, Problem
-from ..reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec
-from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
-from ..reference_impl.truth import truth_trajectory
-from ..tolerances import (DRAKE_OPT_IN_DERIVATIVES_PER_SIMULATED_SECOND, DRAKE_READBACK_ATOL,
-                          DRAKE_STEP_SLACK, DRAKE_TRAP_NORM_DRIFT_MIN, DRAKE_TRAP_NORM_RTOL)
+from freebody.reference_impl.conventions import Trajectory
+from freebody.reference_impl.problem import Body, InitialState, Problem
+from freebody.reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec
+from freebody.reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
+from freebody.reference_impl.truth import truth_trajectory
 from .base import Adapter, EngineDiverged, distribution_version
 from .loads import LoadSchedule
+
+# --- this adapter's tolerances, each with its reason (the harness's rules: freebody/tolerances.py;
+# the trap checks' bounds are with the trap checks below) ---------------------------------------
+# Drake: values written in float64 and read back (mass, inertia through SpatialInertia's unit
+# inertia, gravity, step sizes, the raw coordinates through the frame-explicit pose and velocity
+# getters: a quaternion -> rotation matrix conversion), relative to max(1, |value|); measured
+# <= 4e-16.  A wrong layout (w and v swapped, a body-frame w) is O(1) off.
+DRAKE_READBACK_ATOL = 1e-12
+# Drake's continuous plant is advanced to t = (k + 1) dt; its maximum step is dt (1 + this), so
+# that (k + 1) dt - k dt, which exceeds dt by up to an ulp of t, is one step (k up to 4e9).
+DRAKE_STEP_SLACK = 1e-6
 
 # freebody's name of a continuous integrator -> Drake's scheme (GetIntegrationSchemes()).
 _SCHEMES: dict[str, str] = {
@@ -538,9 +547,7 @@ class DrakeAdapter(Adapter):
         if len(finite):
             self.quaternion_norm_drift = max(self.quaternion_norm_drift,
                                              float(np.max(np.abs(finite - 1.0))))
-        return Trajectory(t=(k0 + np.arange(len(Y))) * self.dt, position=Y[:, 4:7].copy(),
-                          quaternion_wxyz=quat, linear_velocity=Y[:, 10:13].copy(),
-                          angular_velocity=Y[:, 7:10].copy())
+        return Trajectory.on_grid(k0, self.dt, Y[:, 4:7], quat, Y[:, 10:13], Y[:, 7:10])
 
     def bare_loop(self, steps: int) -> Callable[[], object]:
         """Simulator.AdvanceTo + GetPositionsAndVelocities, ``steps`` times from this adapter's
@@ -643,6 +650,19 @@ def _first_line(e: BaseException) -> str:
 
 
 # --- trap checks (DrakeAdapter.trap_checks): each builds its own runs through the adapter -------
+
+# Trap check of the unnormalised quaternion: the adapter's reported raw norm against the norm of
+# Drake's generalized positions (the same doubles, one rounding of a square root apart) ...
+DRAKE_TRAP_NORM_RTOL = 1e-14
+# ... and the drift the check's run must show (measured 0.41: the trap is live; smaller means
+# Drake changed, and the docs with it).
+DRAKE_TRAP_NORM_DRIFT_MIN = 0.1
+# An error-controlled integrator doing more than this many derivative evaluations per simulated
+# second on a 50 rad/s spin near the intermediate axis (dt 0.01) is opt-in: implicit-euler at 1e-6
+# 3.2e5 (1.5 s of wall time per simulated second), radau3 at 1e-10 6.4e5 (3 s); the default ones
+# at most 1.9e5 (rk3 at 1e-10, 0.8 s); fixed-step rk5 700.
+DRAKE_OPT_IN_DERIVATIVES_PER_SIMULATED_SECOND = 2.5e5
+
 
 def _dzhanibekov(duration_steps: int) -> Problem:
     """A flip near the intermediate axis, I = diag(1, 2, 3), w = (0.01, 5, 0) rad/s, no gravity."""

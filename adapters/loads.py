@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..reference_impl.problem import Load, Problem
+from freebody.reference_impl.problem import Load, Problem
 
 
 @dataclass(frozen=True)

@@ -47,7 +47,8 @@ while the adapter traces, and only for the ``make_m`` source it was checked agai
 by: the same arithmetic, one compilation for all bodies (bit for bit the un-normalised model's
 trajectories: tests/test_mjx_structure.py, and the default suite's 210 mjx runs).
 
-Persistent compilation cache.  Importing this module points JAX's persistent compilation cache
+Persistent compilation cache (:mod:`freebody.adapters.jax_runtime`, shared with the Brax
+adapter).  Importing this module points JAX's persistent compilation cache
 at ``$XDG_CACHE_HOME/freebody/jax`` (default ``~/.cache/freebody/jax``, created with the user's
 umask) unless ``JAX_COMPILATION_CACHE_DIR`` (or ``jax_compilation_cache_dir``) names another
 folder, and lets JAX keep every compiled program however quick its compilation; JAX's own
@@ -58,10 +59,10 @@ precision) at once take turns (a lock file in the cache folder), so the second o
 first compiled instead of compiling it again.  :data:`COMPILE_STATS` counts this process's
 compilations and disk loads.
 
-Per-step loads are a (steps, _ROW) float array computed before each chunk from the run's
-:class:`~freebody.adapters.loads.LoadSchedule` (``self.loads``); inside the scan the
-state-dependent parts use the current ``qpos``:  world torque = const + (c - x) x F_point +
-axial(R M) + R tau_body, where ``c`` is the first world-point load's point (the other world-point
+Per-step loads are a (steps, LOAD_ROW) float array (``jax_runtime.load_rows``) computed before
+each chunk from the run's :class:`~freebody.adapters.loads.LoadSchedule` (``self.loads``); inside
+the scan the state-dependent parts use the current ``qpos``:  world torque = const + (c - x) x
+F_point + axial(R M) + R tau_body, where ``c`` is the first world-point load's point (the other world-point
 loads' (p_i - c) x f_i are folded into const), F_point the sum of world-point forces, M = sum of
 body_point (x) force (3, 3) (so axial(R M) = sum (R b_i) x f_i) and tau_body the body-frame
 couples of a case with point forces (per-step); the body couples of a case without go to
@@ -76,7 +77,7 @@ data to float32 does NOT give a float32 run: MJX allocates float64 temporaries u
 no f64 type) and at run time (``qpos`` is float32); the trajectory is returned in float64 (the
 float32 values, widened exactly).  Model numbers (mass, inertia, dt, gravity), the loads and the
 initial state are rounded to float32 in a float32 run.  JAX's trace caches do not keep the two
-modes apart for every function (see :func:`_x64`): they are cleared (``jax.clear_caches()``, which
+modes apart for every function (see ``jax_runtime.x64_scope``): they are cleared (``jax.clear_caches()``, which
 also drops the user's own jit caches: a recompile, never a wrong result) when a scope's mode
 differs from the process-wide one.
 
@@ -109,8 +110,6 @@ import hashlib
 import importlib.util
 import inspect
 import io
-import os
-import re
 import threading
 import time
 from typing import ClassVar
@@ -132,17 +131,17 @@ try:  # private: the one function whose mask _normalise turns into an argument
     from mujoco.mjx._src import support as _mjx_support  # noqa: E402
 except ImportError:  # another MJX layout: no normalisation (one compilation per structure)
     _mjx_support = None
-try:
-    import fcntl  # noqa: E402
-except ImportError:  # no POSIX file locks (Windows): processes may compile the same program twice
-    fcntl = None
 
-from ..reference_impl.conventions import Trajectory  # noqa: E402
-from ..reference_impl.problem import Body, InitialState, Problem  # noqa: E402
+from freebody.reference_impl.conventions import Trajectory  # noqa: E402
+from freebody.reference_impl.problem import Body, InitialState, Problem  # noqa: E402
 from .base import (LOAD_SAMPLING_PER_STAGE, LOAD_SAMPLING_PER_STEP, Adapter, BatchRun,  # noqa: E402
                    UnsupportedOption, distribution_version)
+# CACHE_DIR, COMPILE_STATS and default_cache_dir are this module's names too (docs/mjx.md)
+from .jax_runtime import (CACHE_DIR, COMPILE_STATS, LOAD_ROW, compiled, current_x64,  # noqa: E402,F401
+                          default_cache_dir, load_rows, quat_matrix, x64_scope)
 from .loads import LoadSchedule  # noqa: E402
-from .mujoco_adapter import MujocoAdapter, _trajectory  # noqa: E402
+from .mjcf import free_joint_trajectory  # noqa: E402
+from .mujoco_adapter import MujocoAdapter  # noqa: E402
 
 # freebody's integrator name (MuJoCo's spelling) -> mjx.IntegratorType member, default first:
 # the ones mjx.step implements (IntegratorType also has DISCRETE, which mjx.step rejects).
@@ -157,95 +156,12 @@ CHUNK_STEPS = 1000
 
 _BODY = 1  # body id of the free body (0 is the world)
 
-# One row of per-step loads (the step's load set; see the module docstring):
-# [0:3] force N world, [3:6] constant torque N m world, [6:9] anchor c m world,
-# [9:12] F_point N world, [12:21] M = sum b_i f_i^T (3, 3) row-major (m N), [21:24] tau_body N m body
-# turned by the step's start's R into xfrc_applied (per-step), [24:27] tau_body N m body into
-# qfrc_applied[3:6] (per-stage).
-_ROW = 27
-
-# compiled executables: key -> jax.stages.Compiled
-_COMPILED: dict = {}
-
-# This process's compilations: "compiled" (XLA compiled it), "from_disk" (JAX's persistent cache
-# had it), "seconds" (tracing, lowering, waiting for another process and compiling or loading).
-COMPILE_STATS: dict = {"compiled": 0, "from_disk": 0, "seconds": 0.0}
-
-
-# --- the persistent compilation cache -------------------------------------------------------------
-
-def default_cache_dir() -> str:
-    """Where freebody keeps JAX's compiled programs: ``$XDG_CACHE_HOME/freebody/jax``, else
-    ``~/.cache/freebody/jax``."""
-    base = os.environ.get("XDG_CACHE_HOME", "")
-    if not os.path.isabs(base):  # unset, empty or relative: the XDG default
-        base = os.path.join(os.path.expanduser("~"), ".cache")
-    return os.path.join(base, "freebody", "jax")
-
-
-def _use_persistent_cache() -> str | None:
-    """Point JAX's persistent compilation cache at :func:`default_cache_dir` unless a folder is
-    configured already (``JAX_COMPILATION_CACHE_DIR`` or ``jax_compilation_cache_dir``), and cache
-    programs of any compile time (JAX's default keeps only those over 1 s) unless the user chose a
-    threshold.  Returns the folder in use, or None (the default folder cannot be created)."""
-    folder = jax.config.jax_compilation_cache_dir
-    if not folder:
-        folder = default_cache_dir()
-        try:
-            os.makedirs(folder, exist_ok=True)  # mode 0o777 & ~umask
-        except OSError:
-            return None
-        jax.config.update("jax_compilation_cache_dir", folder)
-    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    if "JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES" not in os.environ:
-        jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)  # -1: any size
-    return folder
-
-
-CACHE_DIR = _use_persistent_cache()
-
-_DISK_HITS = [0]  # JAX's persistent-cache hits in this process (its monitoring events)
-
-
-def _count_disk_hit(event: str, **_kwargs) -> None:
-    if event == "/jax/compilation_cache/cache_hits":
-        _DISK_HITS[0] += 1
-
-
-jax.monitoring.register_event_listener(_count_disk_hit)
-
-
-@contextlib.contextmanager
-def _machine_lock(label: str):
-    """Hold an exclusive lock named ``label`` in the cache folder while compiling, so that
-    processes (parallel workers) compiling the same program take turns and the later ones load it
-    from the cache.  No lock without a cache folder or POSIX locks (only compile time is lost)."""
-    folder = jax.config.jax_compilation_cache_dir
-    if not folder or fcntl is None or not jax.config.jax_enable_compilation_cache:
-        yield
-        return
-    try:
-        locks = os.path.join(folder, "freebody-locks")
-        os.makedirs(locks, exist_ok=True)
-        f = open(os.path.join(locks, re.sub(r"[^A-Za-z0-9_.-]", "_", label) + ".lock"), "a+b")
-    except OSError:
-        yield
-        return
-    with f:
-        fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
-
-
 # --- one structure for every free body: the mass-matrix mask as an argument -----------------------
 
 # The fields of MuJoCo's "simple body" optimisation (see the module docstring), taken from a body
 # whose principal frame is not its body frame.
-_SPARSITY_FIELDS = ("nC", "M_rownnz", "M_rowadr", "M_colind", "dof_simplenum", "body_simple",
-                    "body_sameframe")
+SPARSITY_FIELDS = ("nC", "M_rownnz", "M_rowadr", "M_colind", "dof_simplenum", "body_simple",
+                   "body_sameframe")
 # sha256 of the source of mujoco.mjx._src.support.make_m whose dense branch _make_m_masked copies
 # (mujoco-mjx 3.17.0); with any other source the models are left as they are.
 _MAKE_M_SHA256 = "bc1ff2f7a212659abd782e30b62b7903de30a66484557e635d0a42ae2892cf0d"
@@ -298,9 +214,10 @@ def _masked_make_m():
             _mjx_support.make_m = _MAKE_M
 
 
-def _full_pattern() -> dict:
-    """The sparsity fields of a free body whose principal frame is not its body frame (MuJoCo
-    compiles it; built once)."""
+def full_pattern() -> dict:
+    """The sparsity fields (:data:`SPARSITY_FIELDS`) of a free body whose principal frame is not
+    its body frame (MuJoCo compiles it; built once).  Also the Brax adapter's: a Brax System is an
+    MJX Model."""
     if not _TEMPLATE:
         inertia = np.array([[2.0, 0.3, 0.1], [0.3, 3.0, 0.2], [0.1, 0.2, 4.0]])
         pb = Problem("structure", "", Body(1.0, inertia),
@@ -311,7 +228,7 @@ def _full_pattern() -> dict:
             mx = mjx.put_model(c.model)
         finally:
             c.close()
-        _TEMPLATE.update({f: getattr(mx, f) for f in _SPARSITY_FIELDS})
+        _TEMPLATE.update({f: getattr(mx, f) for f in SPARSITY_FIELDS})
     return _TEMPLATE
 
 
@@ -325,62 +242,16 @@ def _normalise(mx):
     i = np.repeat(np.arange(mx.nv), mx.M_rownnz)
     mask = np.zeros((mx.nv, mx.nv), dtype=bool)
     mask[i, mx.M_colind] = True
-    return mx.replace(**_full_pattern()), jnp.asarray(mask)
-
-
-def _x64_scope(on: bool):
-    """JAX's thread-local x64 scope (``jax.enable_x64`` in JAX >= 0.5; the experimental context
-    managers before)."""
-    state = getattr(jax, "enable_x64", None)
-    if state is not None:
-        return state(on)
-    from jax.experimental import disable_x64, enable_x64
-    return enable_x64() if on else disable_x64()
-
-
-@contextlib.contextmanager
-def _x64(on: bool):
-    """Run the block with jax_enable_x64 = on, without touching the process-wide flag.
-
-    JAX's trace/lowering caches do not tell the two x64 modes apart for every function (JAX
-    0.10.2: MJX's RK4 calls ``jnp.tril`` on a numpy constant; traced under one mode, it fails to
-    lower under the other with "operand type mismatch ... f32 ... f64").  So the caches are
-    cleared on entering and on leaving a scope whose mode differs from the one in force outside,
-    and code outside (this module's later runs, the user's own JAX code) never meets a trace
-    made under the other mode.  The compiled executables this module keeps are not affected."""
-    outer = _current_x64()
-    if on != outer:
-        jax.clear_caches()
-    try:
-        with _x64_scope(on):
-            yield
-    finally:
-        if on != outer:
-            jax.clear_caches()
-
-
-def _current_x64() -> bool:
-    """jax_enable_x64 as in force here (the process-wide value outside any scope)."""
-    return bool(jax.config.jax_enable_x64)
+    return mx.replace(**full_pattern()), jnp.asarray(mask)
 
 
 # --- the step inside the scan ---------------------------------------------------------------------
-
-def _quat_matrix(q):
-    """R(q) (3, 3) body -> world from a unit quaternion (w, x, y, z) (JAX arrays)."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    return jnp.stack([
-        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)]),
-        jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)]),
-        jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]),
-    ])
-
 
 def _loaded_step(m, d, row):
     """xfrc_applied[body] = the row's wrench at the current state, qfrc_applied[3:6] = its
     body couple for every stage, then mjx.step."""
     x, q = d.qpos[0:3], d.qpos[3:7]
-    R = _quat_matrix(q)
+    R = quat_matrix(q)
     A = R @ row[12:21].reshape(3, 3)                      # sum (R b_i) f_i^T
     tau = (row[3:6] + jnp.cross(row[6:9] - x, row[9:12])
            + jnp.stack([A[1, 2] - A[2, 1], A[2, 0] - A[0, 2], A[0, 1] - A[1, 0]])
@@ -391,7 +262,7 @@ def _loaded_step(m, d, row):
 
 
 def _chunk(m, d, rows, n, mask=None):
-    """Scan _loaded_step over the first n of rows (C, _ROW); the C - n steps after them leave the
+    """Scan _loaded_step over the first n of rows (C, LOAD_ROW); the C - n steps after them leave the
     Data as it is.  mask: the body's mass-matrix mask (see :func:`_normalise`), or None for the
     model's own.  Returns (Data after step n, qpos (C, 7), qvel (C, 6)): rows n.. repeat the
     state of step n."""
@@ -408,36 +279,6 @@ def _chunk(m, d, rows, n, mask=None):
 
 
 _chunk_jit = jax.jit(_chunk)
-
-
-def _compiled(kind: str, fn, precision: str, args, extra=(), label: str = ""):
-    """The compiled ``fn(*args)`` from the cache, compiling on a miss (or loading it from JAX's
-    persistent cache).  Returns (compiled, seconds spent lowering and compiling: 0.0 on a hit).
-    A float32 compilation is checked to contain no f64 type.  label (e.g. the integrator) names
-    the lock that processes compiling the same program take turns on."""
-    leaves, treedef = jax.tree_util.tree_flatten(args)
-    key = (kind, precision, treedef, extra,
-           tuple((tuple(np.shape(a)), str(getattr(a, "dtype", type(a).__name__))) for a in leaves))
-    hit = _COMPILED.get(key)
-    if hit is not None:
-        return hit, 0.0
-    t0 = time.perf_counter()
-    with _machine_lock(f"{kind}-{label}-{precision}"):
-        disk_hits = _DISK_HITS[0]
-        with _masked_make_m():
-            lowered = fn.lower(*args)
-        if precision == "float32":
-            text = lowered.as_text()
-            if "f64" in text:
-                raise RuntimeError("the float32 MJX computation contains float64 operations "
-                                   "(jax_enable_x64 leaked into the float32 scope?)")
-        compiled = lowered.compile()
-        from_disk = _DISK_HITS[0] > disk_hits
-    _COMPILED[key] = compiled
-    spent = time.perf_counter() - t0
-    COMPILE_STATS["from_disk" if from_disk else "compiled"] += 1
-    COMPILE_STATS["seconds"] += spent
-    return compiled, spent
 
 
 # --- building -----------------------------------------------------------------------------------
@@ -467,39 +308,10 @@ def _build(problem: Problem, dt: float, integrator: str, precision: str, x64_def
                                                              _INTEGRATOR_ENUM[integrator])))
     if dx.qpos.dtype != dtype:
         raise RuntimeError(f"mjx data is {dx.qpos.dtype}, not {precision}")
-    settings["jax_enable_x64"] = {"default": bool(x64_default), "set": _current_x64()}
+    settings["jax_enable_x64"] = {"default": bool(x64_default), "set": current_x64()}
     _check("jax_enable_x64 (scoped)", settings["jax_enable_x64"]["set"], precision == "float64")
     mx, mask = _normalise(mx)
     return mx, dx, settings, mask
-
-
-def _per_stage(loads: LoadSchedule) -> bool:
-    """Whether MJX's stages see every load of this schedule as the case defines it: no force at a
-    world or body point in any segment (see the module docstring)."""
-    return not any(s.point_forces or s.body_point_forces for s in loads.segments)
-
-
-def _load_rows(loads: LoadSchedule, k0: int, k1: int, dtype) -> np.ndarray:
-    """Per-step load rows (k1 - k0, _ROW) for the steps k0 <= k < k1 (see _ROW)."""
-    couple = slice(24, 27) if _per_stage(loads) else slice(21, 24)
-    rows = np.zeros((k1 - k0, _ROW))
-    for seg, a, b in loads.stretches(k0, k1):
-        row = np.zeros(_ROW)
-        row[0:6] = seg.constant
-        if seg.point_forces:
-            anchor = seg.point_forces[0][0]
-            row[6:9] = anchor
-            for p, f in seg.point_forces:
-                row[9:12] += f
-                row[3:6] += np.cross(p - anchor, f)
-        M = np.zeros((3, 3))
-        for bp, f in seg.body_point_forces:
-            M += np.outer(bp, f)
-        row[12:21] = M.ravel()
-        if seg.body_torque is not None:
-            row[couple] = seg.body_torque
-        rows[a - k0:b - k0] = row
-    return rows.astype(dtype)
 
 
 def _first_bad(Q: np.ndarray, V: np.ndarray) -> int | None:
@@ -561,8 +373,8 @@ class MjxAdapter(Adapter):
     # --- world ---------------------------------------------------------------------------------
     def build(self) -> None:
         self._dtype = _DTYPE[self.precision]
-        x64_default = _current_x64()
-        with _x64(self.precision == "float64"):
+        x64_default = current_x64()
+        with x64_scope(self.precision == "float64"):
             self._m, self._d, settings, self._mask = _build(self.problem, self.dt, self.integrator,
                                                             self.precision, x64_default)
         self.settings.update(settings)
@@ -580,15 +392,15 @@ class MjxAdapter(Adapter):
         Q[0] = np.asarray(self._d.qpos, dtype=np.float64)
         V[0] = np.asarray(self._d.qvel, dtype=np.float64)
         model, data = self._m, self._d
-        with _x64(self.precision == "float64"):
+        with x64_scope(self.precision == "float64"):
             i = 0
             while i < steps:
                 n = min(CHUNK_STEPS, steps - i)
-                rows = np.zeros((CHUNK_STEPS, _ROW), dtype=dtype)
-                rows[:n] = _load_rows(self.loads, k0 + i, k0 + i + n, dtype)
+                rows = np.zeros((CHUNK_STEPS, LOAD_ROW), dtype=dtype)
+                rows[:n] = load_rows(self.loads, k0 + i, k0 + i + n, dtype)
                 args = (model, data, jnp.asarray(rows), jnp.int32(n), self._mask)
-                fn, spent = _compiled("chunk", _chunk_jit, self.precision, args,
-                                      label=self.integrator)
+                fn, spent = compiled("chunk", _chunk_jit, self.precision, args,
+                                     label=self.integrator, lowering=_masked_make_m)
                 self.compile_time_s += spent
                 t0 = time.perf_counter()
                 data, Qc, Vc = fn(*args)  # the Data after the chunk's last real step
@@ -600,7 +412,7 @@ class MjxAdapter(Adapter):
                 i += n
         self._d = data
         self.k = k0 + steps
-        return _trajectory(Q, V, self.dt, k0)
+        return free_joint_trajectory(Q, V, self.dt, k0)
 
     def close(self) -> None:
         self._m = self._d = self._mask = None
@@ -624,9 +436,9 @@ class MjxAdapter(Adapter):
         cls._check_batch_options(integrator, precision)
         if not problems:
             return BatchRun([], [], 0.0, 0.0, [])
-        x64_default = _current_x64()
+        x64_default = current_x64()
         schedules = [LoadSchedule(problem, dt) for problem in problems]
-        with _x64(precision == "float64"):
+        with x64_scope(precision == "float64"):
             built = [_build(problem, dt, integrator, precision, x64_default)
                      for problem in problems]
             model, model_axes = _stack_models([b[0] for b in built])
@@ -639,7 +451,7 @@ class MjxAdapter(Adapter):
         for i in range(len(problems)):
             bad = _first_bad(Q[i], V[i])
             diverged.append(None if bad is None else bad * dt)
-            trajectories.append(_trajectory(Q[i], V[i], dt))
+            trajectories.append(free_joint_trajectory(Q[i], V[i], dt))
         return BatchRun(trajectories, diverged, compile_s, step_s, [b[2] for b in built])
 
     @classmethod
@@ -695,11 +507,12 @@ def _run_batch_chunks(fn_jit, axes_key, model, data, mask, schedules: list[LoadS
     k = 0
     while k < steps:
         n = min(CHUNK_STEPS, steps - k)
-        rows = np.zeros((B, CHUNK_STEPS, _ROW), dtype=dtype)
+        rows = np.zeros((B, CHUNK_STEPS, LOAD_ROW), dtype=dtype)
         for i, loads in enumerate(schedules):
-            rows[i, :n] = _load_rows(loads, k, k + n, dtype)
+            rows[i, :n] = load_rows(loads, k, k + n, dtype)
         args = (model, data, jnp.asarray(rows), jnp.int32(n), mask)
-        fn, spent = _compiled("batch", fn_jit, precision, args, extra=axes_key, label=integrator)
+        fn, spent = compiled("batch", fn_jit, precision, args, extra=axes_key, label=integrator,
+                             lowering=_masked_make_m)
         compile_s += spent
         t0 = time.perf_counter()
         data, Qc, Vc = fn(*args)

@@ -63,12 +63,10 @@ try:  # mujoco.rollout: many steps in one C call (advance's fast path); absent i
 except ImportError:  # pragma: no cover - MuJoCo < 3.1
     _Rollout = None
 
-from ..reference_impl.conventions import (Trajectory, angular_velocity_body_from_world,
-                                          angular_velocity_world_from_body)
-from ..tolerances import MUJOCO_PRINCIPAL_AXES_ATOL, MUJOCO_TRIANGLE_ROUNDOFF
-from ..reference_impl.rotations import matrix_from_quat, quat_from_matrix
+from freebody.reference_impl.conventions import Trajectory, angular_velocity_body_from_world
 from .base import LOAD_SAMPLING_PER_STAGE, Adapter, EngineDiverged
 from .loads import Segment
+from .mjcf import alignfree_default, free_joint_trajectory, inertial_element
 
 # freebody's integrator name (MuJoCo's own spelling) -> the mjtIntegrator member, default first.
 _INTEGRATOR_ENUM: dict[str, str] = {
@@ -110,11 +108,6 @@ _CHECKPOINT_SPEC = (_FULLPHYSICS | int(mujoco.mjtState.mjSTATE_WARMSTART)
 # ctrl is zeroed (unused here).
 _ROLLOUT_CONTROL_SPEC = (int(mujoco.mjtState.mjSTATE_XFRC_APPLIED)
                          | int(mujoco.mjtState.mjSTATE_QFRC_APPLIED))
-
-
-def _fmt(a) -> str:
-    """Floats as shortest round-trip decimal strings for the XML (exact after parsing)."""
-    return " ".join(repr(float(x)) for x in np.ravel(a))
 
 
 class MujocoAdapter(Adapter):
@@ -176,11 +169,11 @@ class MujocoAdapter(Adapter):
         """The model of one free body (alignfree off, recorded), checked to keep the XML body
         frame and to have no damping, armature, friction loss, sleeping or fluid forces."""
         body = self.problem.body
-        align = _alignfree_default()
+        align = alignfree_default()
         compiler = '<compiler alignfree="false"/>' if align is not None else ""
         xml = (f'<mujoco model="freebody">{compiler}<worldbody>'
                f'<body name="body" pos="0 0 0" quat="1 0 0 0"><freejoint name="free"/>'
-               f'{_inertial_element(body.mass, body.I_body)}'
+               f'{inertial_element(body.mass, body.I_body)}'
                f'</body></worldbody></mujoco>')
         model = mujoco.MjModel.from_xml_string(xml)
         if align is not None:
@@ -344,11 +337,11 @@ class MujocoAdapter(Adapter):
                 i, reason = bad  # the warning was raised by the step ending at row i
                 self.k = k0 + i
                 raise EngineDiverged(self.k * self.dt, reason,
-                                     _trajectory(Q[:i + 1], V[:i + 1], self.dt, k0))
+                                     free_joint_trajectory(Q[:i + 1], V[:i + 1], self.dt, k0))
         self.k = k0 + steps
         self._xfrc[:] = 0.0
         self._body_couple[:] = 0.0
-        return _trajectory(Q, V, self.dt, k0)
+        return free_joint_trajectory(Q, V, self.dt, k0)
 
     def _loop(self, seg: Segment, Q: np.ndarray, V: np.ndarray, i0: int, n: int):
         """n steps by a Python loop over mj_step into rows i0 + 1 .. i0 + n of Q (N, 7) and
@@ -472,58 +465,6 @@ def _needs_stages(seg: Segment) -> bool:
     """Whether the segment's loads need each stage's pose (a force at a world or body point):
     the control callback then writes them; body couples go in qfrc_applied as they are."""
     return bool(seg.point_forces or seg.body_point_forces)
-
-
-def _trajectory(Q: np.ndarray, V: np.ndarray, dt: float, k0: int = 0) -> Trajectory:
-    """Canonical Trajectory from raw free-joint qpos rows (N, 7) and qvel rows (N, 6), the first
-    at t = k0 dt (also used by the MJX adapter)."""
-    q = Q[:, 3:7].copy()
-    return Trajectory(t=(k0 + np.arange(len(Q))) * dt, position=Q[:, 0:3].copy(), quaternion_wxyz=q,
-                      linear_velocity=V[:, 0:3].copy(),
-                      angular_velocity=angular_velocity_world_from_body(q, V[:, 3:6]))
-
-
-def _inertial_element(mass: float, I_body: np.ndarray) -> str:
-    """``<inertial>`` at the body origin with the full tensor (``fullinertia``).
-
-    When MuJoCo's "A + B >= C" check would fail only by round-off (a flat body given with
-    off-diagonal terms), the principal moments and axes are computed here instead (numpy eigh),
-    C is set to A + B, and they are passed as ``diaginertia`` + ``quat``: a change of at most
-    MUJOCO_TRIANGLE_ROUNDOFF * C (freebody.tolerances).  A real violation is left for MuJoCo to reject.
-    """
-    I = np.asarray(I_body, dtype=float)
-    full = (f'<inertial pos="0 0 0" mass="{_fmt(mass)}" fullinertia="'
-            f'{_fmt([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])}"/>')
-    try:
-        mujoco.MjModel.from_xml_string(f"<mujoco><worldbody><body><freejoint/>{full}"
-                                       f"</body></worldbody></mujoco>")
-        return full
-    except ValueError as e:
-        if "A + B >= C" not in str(e):
-            raise
-    evals, evecs = np.linalg.eigh(0.5 * (I + I.T))
-    if evals[0] + evals[1] < evals[2] * (1.0 - MUJOCO_TRIANGLE_ROUNDOFF):
-        return full  # a real violation: MuJoCo's error is the right message
-    evals[2] = evals[0] + evals[1]
-    if np.linalg.det(evecs) < 0:
-        evecs[:, 2] *= -1.0
-    quat = quat_from_matrix(evecs)
-    _check_rotation(evecs, matrix_from_quat(quat))
-    return (f'<inertial pos="0 0 0" mass="{_fmt(mass)}" quat="{_fmt(quat)}" '
-            f'diaginertia="{_fmt(evals)}"/>')
-
-
-def _check_rotation(a: np.ndarray, b: np.ndarray) -> None:
-    if not np.allclose(a, b, atol=MUJOCO_PRINCIPAL_AXES_ATOL):
-        raise RuntimeError("principal axes of the inertia could not be converted to a quaternion")
-
-
-def _alignfree_default():
-    """The compiler's alignfree default, or None when this MuJoCo has no such option."""
-    spec = getattr(mujoco, "MjSpec", None)
-    if spec is None or not hasattr(spec().compiler, "alignfree"):
-        return None
-    return bool(spec().compiler.alignfree)
 
 
 def _integrator_name(value: int) -> str:

@@ -27,7 +27,7 @@ import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
 import freebody.adapters.brax_adapter as BA  # noqa: E402
-from freebody.adapters import mjx_adapter  # noqa: E402
+from freebody.adapters import jax_runtime  # noqa: E402
 from freebody.adapters.base import default_engine_names, load_adapter, registry  # noqa: E402
 from freebody.adapters.brax_adapter import PIPELINES, BraxAdapter  # noqa: E402
 from freebody.input import load_case  # noqa: E402
@@ -102,7 +102,7 @@ def test_registered_opt_in_with_its_capabilities():
 def test_brax_defaults_are_as_documented():
     """What the module docstring says of Brax 0.14: no velocity damping by default, the
     approximate mass-matrix inverse, and a model without a geom refused."""
-    with BA._x64(True):
+    with BA.x64_scope(True):
         defaults = BA._brax_defaults()
         assert defaults["ang_damping"] == 0.0 and defaults["vel_damping"] == 0.0
         assert defaults["timestep"] == 0.002 and defaults["gravity"] == [0.0, 0.0, -9.81]
@@ -110,7 +110,7 @@ def test_brax_defaults_are_as_documented():
         sys_ = BA._load_system(BA._mjcf(_tumbling_problem(), 0.01))
         assert sys_.matrix_inv_iterations == 10
         no_geom = BA._mjcf(_tumbling_problem(), 0.01).replace(
-            f'<geom name="anchor" type="sphere" size="{BA._fmt(BA.GEOM_RADIUS)}" contype="0" conaffinity="0"/>', "")
+            f'<geom name="anchor" type="sphere" size="{BA.format_floats(BA.GEOM_RADIUS)}" contype="0" conaffinity="0"/>', "")
         with pytest.raises(IndexError):
             BA.mjcf.validate_model(BA._load_system(no_geom).mj_model)
 
@@ -120,7 +120,7 @@ def test_maximal_coordinate_pipelines_ignore_a_free_joints_generalized_forces():
     """Why the adapter hooks the joint force of positional and spring: their free joint drops
     actuator forces (joints._free), which generalized applies."""
     pb = _tumbling_problem()
-    with BA._x64(True):
+    with BA.x64_scope(True):
         sys_ = BA._load_system(BA._mjcf(pb, 0.01))
         sys_ = sys_.replace(actuator=BA._dof_actuators(np.float64), nu=6, mj_model=None)
         q = jnp.asarray(np.concatenate([pb.initial.position, pb.initial.quaternion_wxyz]))
@@ -252,8 +252,8 @@ def _world_w_as_written(q, w):
 
 
 def _diagonal_only(mass, I_body):
-    from freebody.adapters.mujoco_adapter import _inertial_element
-    return _inertial_element(mass, np.diag(np.diag(I_body)))
+    from freebody.adapters.mjcf import inertial_element
+    return inertial_element(mass, np.diag(np.diag(I_body)))
 
 
 @contextlib.contextmanager
@@ -265,9 +265,9 @@ def _no_float64():
 UNHANDLED = {
     "angular velocity: qd[3:6] is body frame": ({"angular_velocity_body_from_world": _world_w_as_written}, False),
     "no damping left on (ang/vel_damping, exp(d h) per step)": ({"ANG_DAMPING": -0.05, "VEL_DAMPING": -0.05}, False),
-    "full inertia: body frame kept, principal frame in link.inertia": ({"_inertial_element": _diagonal_only}, True),
+    "full inertia: body frame kept, principal frame in link.inertia": ({"inertial_element": _diagonal_only}, True),
     "external wrench reaches the free body (all pipelines)": ({"_with_external": lambda original: original}, True),
-    "float64 runs are float64 (x64 scope), float32 runs float32": ({"_x64": lambda on: _no_float64()}, True),
+    "float64 runs are float64 (x64 scope), float32 runs float32": ({"x64_scope": lambda on: _no_float64()}, True),
     # labelled as the engines' usual scheme (a gyroscopic term), not as Brax's
     "positional/spring: no gyroscopic term (finding, identified)":
         ({"PIPELINE_MAPS": {**MAPS, "positional": "semi-implicit-explicit-gyro",
@@ -282,7 +282,7 @@ def test_trap_check_fails_when_the_adapter_stops_handling_it(check, monkeypatch)
     compiled with the handling is reused): the trap's live check fails, or build()'s read-back
     (or the wrench hook's call count) refuses the run first."""
     attrs, refused = UNHANDLED[check]
-    monkeypatch.setattr(mjx_adapter, "_COMPILED", {})
+    monkeypatch.setattr(jax_runtime, "_COMPILED", {})
     for name, value in attrs.items():
         monkeypatch.setattr(BA, name, value)
     if refused:

@@ -19,7 +19,7 @@ pytest.importorskip("mujoco.mjx", reason="mujoco-mjx not installed (pip install 
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from freebody.adapters import mjx_adapter  # noqa: E402
+from freebody.adapters import jax_runtime, mjx_adapter  # noqa: E402
 from freebody.adapters.mjx_adapter import CHUNK_STEPS, MjxAdapter  # noqa: E402
 from freebody.adapters.mujoco_adapter import MujocoAdapter  # noqa: E402
 from freebody.errors import InputError  # noqa: E402
@@ -168,11 +168,11 @@ def test_float32_guard_rejects_a_float64_computation():
     """The compile-time check that a float32 run has no f64 operation can fail."""
     pb = _loaded_problem()
     a = MjxAdapter(pb, DT, "Euler", "float64")
-    with mjx_adapter._x64(True):
-        rows = jnp.zeros((2, mjx_adapter._ROW))
+    with jax_runtime.x64_scope(True):
+        rows = jnp.zeros((2, jax_runtime.LOAD_ROW))
         with pytest.raises(RuntimeError, match="float64"):
-            mjx_adapter._compiled("guard-probe", mjx_adapter._chunk_jit, "float32",
-                                  (a._m, a._d, rows, jnp.int32(2)))
+            jax_runtime.compiled("guard-probe", mjx_adapter._chunk_jit, "float32",
+                                 (a._m, a._d, rows, jnp.int32(2)))
 
 
 def test_switching_precision_scopes_does_not_reuse_stale_traces():
@@ -185,7 +185,7 @@ def test_switching_precision_scopes_does_not_reuse_stale_traces():
 
     got = []
     for on in (True, False, True):
-        with mjx_adapter._x64(on):
+        with jax_runtime.x64_scope(on):
             x = jnp.ones(3)
             got.append(jax.jit(f).lower(x).compile()(x).dtype)
     assert got == [jnp.float64, jnp.float32, jnp.float64]

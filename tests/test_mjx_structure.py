@@ -20,7 +20,7 @@ pytest.importorskip("mujoco.mjx", reason="mujoco-mjx not installed (pip install 
 
 import jax  # noqa: E402
 
-from freebody.adapters import mjx_adapter  # noqa: E402
+from freebody.adapters import jax_runtime, mjx_adapter  # noqa: E402
 from freebody.adapters.base import ENGINES  # noqa: E402
 from freebody.adapters.mjx_adapter import MjxAdapter  # noqa: E402
 from freebody.input.casefile import bundled_case_paths, load_case  # noqa: E402
@@ -44,7 +44,7 @@ def _problem(inertia: np.ndarray) -> Problem:
 
 
 def _structure(problem: Problem, integrator: str, precision: str):
-    with mjx_adapter._x64(precision == "float64"):
+    with jax_runtime.x64_scope(precision == "float64"):
         mx, _, _, mask = mjx_adapter._build(problem, DT, integrator, precision, False)
     return jax.tree_util.tree_structure(mx), mask
 

@@ -29,7 +29,6 @@ with warnings.catch_warnings():  # SAPIEN's renderer warns when the system has n
 from sapien import physx  # noqa: E402
 
 import freebody.adapters.sapien_adapter as SA  # noqa: E402
-from freebody import tolerances as tol  # noqa: E402
 from freebody.adapters.base import load_adapter  # noqa: E402
 from freebody.adapters.sapien_adapter import SapienAdapter  # noqa: E402
 from freebody.input import load_case  # noqa: E402
@@ -351,10 +350,10 @@ def test_full_inertia_moves_as_the_rotated_diagonal_body(solver, make_adapter):
     a = make_adapter("sapien", diag, 0.01, solver).simulate(200)
     b = make_adapter("sapien", full, 0.01, solver).simulate(200)
     back = quat_multiply(b.quaternion_wxyz, quat_from_matrix(Q.T))
-    assert_same_rotation(a.quaternion_wxyz, back, tol.SAPIEN_TRAP_FULL_INERTIA_RAD)
+    assert_same_rotation(a.quaternion_wxyz, back, SA.SAPIEN_TRAP_FULL_INERTIA_RAD)
     L_a = angular_momentum(diag.body.I_body, a.quaternion_wxyz, a.angular_velocity)
     L_b = angular_momentum(full.body.I_body, b.quaternion_wxyz, b.angular_velocity)
-    assert np.max(np.abs(L_a - L_b)) < tol.SAPIEN_TRAP_FULL_INERTIA_RAD * np.linalg.norm(L_a[0])
+    assert np.max(np.abs(L_a - L_b)) < SA.SAPIEN_TRAP_FULL_INERTIA_RAD * np.linalg.norm(L_a[0])
 
 
 # --- loads ------------------------------------------------------------------------------------------
@@ -469,7 +468,7 @@ def test_tgs_drift_of_a_steady_spin_documented(solver, make_adapter):
     w = np.linalg.norm(make_adapter("sapien", pb, 0.01, solver).simulate(n).angular_velocity, axis=1)
     per_step = (w[-1] / w[0]) ** (1.0 / n) - 1.0
     if solver == "tgs":
-        assert TGS_DRIFT_MIN <= per_step <= tol.SAPIEN_TGS_SPIN_DRIFT_PER_STEP, per_step
+        assert TGS_DRIFT_MIN <= per_step <= SA.SAPIEN_TGS_SPIN_DRIFT_PER_STEP, per_step
     else:
         assert abs(per_step) <= PGS_DRIFT_MAX, per_step
 
