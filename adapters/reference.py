@@ -20,11 +20,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from .. import __version__ as _freebody_version
-from ..reference_impl import compiled as _c
-from ..reference_impl.conventions import Trajectory
-from ..reference_impl.integrators import (INTEGRATOR_ALIASES, INTEGRATORS, _initial, canonical_integrator,
-                                           simulate)
+from freebody import __version__ as _freebody_version
+from freebody.reference_impl import compiled as _c
+from freebody.reference_impl.conventions import Trajectory
+from freebody.reference_impl.integrators import (INTEGRATOR_ALIASES, INTEGRATORS, canonical_integrator,
+                                                 initial_arrays, simulate)
 from .base import Adapter, LOAD_SAMPLING_PER_STAGE
 
 # euler-quat, lie-euler, rk4, implicit-midpoint, rkmk4: on (x, q, p, L) with I_b^-1
@@ -42,10 +42,10 @@ def _continue_matrix(k0, x, R, p, L, dt, steps, M, I_inv, Mg, loads, gram, out_x
     for i in range(steps):
         x, R, p, L = _c.euler_matrix_step(k0 + i, x, R, p, L, dt, M, I_inv, Mg, loads, gram)
         q, w, ortho = _c.matrix_outputs(R, L, I_inv)
-        _c._put(out_x, i + 1, x)
-        _c._put(out_q, i + 1, q)
-        _c._put(out_v, i + 1, _c.div(p, M))
-        _c._put(out_w, i + 1, w)
+        _c.put_row(out_x, i + 1, x)
+        _c.put_row(out_q, i + 1, q)
+        _c.put_row(out_v, i + 1, _c.div(p, M))
+        _c.put_row(out_w, i + 1, w)
         out_ortho[i + 1] = ortho
     return x, R, p, L
 
@@ -64,10 +64,10 @@ def _continue_quat(scheme, k0, x, q, p, L, dt, steps, M, I_inv, g, loads, out_x,
             x, q, p, L = _c.rkmk4_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
         else:
             x, q, p, L = _c.rk4_step(k0 + i, x, q, p, L, dt, M, I_inv, g, loads)
-        _c._put(out_x, i + 1, x)
-        _c._put(out_q, i + 1, q)
-        _c._put(out_v, i + 1, _c.div(p, M))
-        _c._put(out_w, i + 1, _c.omega_world(_c.matrix_from_quat(q), I_inv, L))
+        _c.put_row(out_x, i + 1, x)
+        _c.put_row(out_q, i + 1, q)
+        _c.put_row(out_v, i + 1, _c.div(p, M))
+        _c.put_row(out_w, i + 1, _c.omega_world(_c.matrix_from_quat(q), I_inv, L))
     return x, q, p, L
 
 
@@ -77,10 +77,10 @@ def _continue_semi_implicit(k0, x, q, v, w_b, dt, steps, M, I_b, I_inv, g, loads
     """Rows 1..steps after the state (x, q, v, w_b) of step k0 (as compiled.run_semi_implicit)."""
     for i in range(steps):
         x, q, v, w_b = _c.semi_implicit_step(k0 + i, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro)
-        _c._put(out_x, i + 1, x)
-        _c._put(out_q, i + 1, q)
-        _c._put(out_v, i + 1, v)
-        _c._put(out_w, i + 1, _c.matvec(_c.matrix_from_quat(q), w_b))
+        _c.put_row(out_x, i + 1, x)
+        _c.put_row(out_q, i + 1, q)
+        _c.put_row(out_v, i + 1, v)
+        _c.put_row(out_w, i + 1, _c.matvec(_c.matrix_from_quat(q), w_b))
     return x, q, v, w_b
 
 
@@ -91,10 +91,10 @@ if hasattr(_c, "splitting_step"):
         """Rows 1..steps after the state (x, q, p, L) of step k0 (as compiled.run_splitting)."""
         for i in range(steps):
             x, q, p, L = _c.splitting_step(k0 + i, x, q, p, L, dt, M, axes, moments, g, loads)
-            _c._put(out_x, i + 1, x)
-            _c._put(out_q, i + 1, q)
-            _c._put(out_v, i + 1, _c.div(p, M))
-            _c._put(out_w, i + 1, _c.omega_world(_c.matrix_from_quat(q), I_inv, L))
+            _c.put_row(out_x, i + 1, x)
+            _c.put_row(out_q, i + 1, q)
+            _c.put_row(out_v, i + 1, _c.div(p, M))
+            _c.put_row(out_w, i + 1, _c.omega_world(_c.matrix_from_quat(q), I_inv, L))
         return x, q, p, L
 
     CONTINUED = (*CONTINUED, "symplectic-splitting")
@@ -138,7 +138,7 @@ class ReferenceAdapter(Adapter):
         self._stepped = self.integrator in CONTINUED
         if not self._stepped:
             return
-        M, I_b, I_inv, x, q, R, p, L, v, w = _initial(self.problem)
+        M, I_b, I_inv, x, q, R, p, L, v, w = initial_arrays(self.problem)
         self._M, self._I_b, self._I_inv = float(M), _c.mat(I_b), _c.mat(I_inv)
         self._g = _c.vec(self.problem.gravity)
         self._Mg = _c.vec(M * np.asarray(self.problem.gravity, dtype=float))
@@ -150,7 +150,7 @@ class ReferenceAdapter(Adapter):
         else:
             self._state = (_c.vec(x), _c.vec(q), _c.vec(p), _c.vec(L))
         if self.integrator == "symplectic-splitting":
-            from ..reference_impl.splitting import principal_frame
+            from freebody.reference_impl.splitting import principal_frame
 
             frame = principal_frame(I_b)
             self._frame = (_c.mat(frame.axes), _c.vec(frame.moments))
@@ -209,7 +209,7 @@ def map_orientations(problem, integrator: str, dt: float, steps: int, chunk_step
     adapter continues the map, else integrated whole and cut (``load_sampling``: the variant of a
     multi-stage engine map, see ``integrators.simulate``).  Only q is kept between pieces
     (scheme identification of a long run holds a few dozen of these streams at once)."""
-    from ..reference_impl.truth import piece_bounds
+    from freebody.reference_impl.truth import piece_bounds
 
     bounds = piece_bounds(steps, chunk_steps)
     integrator = canonical_integrator(integrator)

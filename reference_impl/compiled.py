@@ -647,7 +647,8 @@ def matrix_outputs(R, L, I_inv):
 # --- whole runs: a loop over the steps, each state written into the output rows -----------------
 
 @jit
-def _put(out, k, a):
+def put_row(out, k, a):
+    """out[k, :] = a, element by element (compiled code; also the compiled engine maps')."""
     for i in range(len(a)):
         out[k, i] = a[i]
 
@@ -660,10 +661,10 @@ def run_euler_matrix(x, R, p, L, dt, steps, M, I_inv, Mg, loads, gram, out_x, ou
         if k > 0:
             x, R, p, L = euler_matrix_step(k - 1, x, R, p, L, dt, M, I_inv, Mg, loads, gram)
         q, w, ortho = matrix_outputs(R, L, I_inv)
-        _put(out_x, k, x)
-        _put(out_q, k, q)
-        _put(out_v, k, div(p, M))
-        _put(out_w, k, w)
+        put_row(out_x, k, x)
+        put_row(out_q, k, q)
+        put_row(out_v, k, div(p, M))
+        put_row(out_w, k, w)
         out_ortho[k] = ortho
 
 
@@ -686,10 +687,10 @@ def run_quat(scheme, x, q, p, L, dt, steps, M, I_inv, g, loads, out_x, out_q, ou
             x, q, p, L = rkmk4_step(k, x, q, p, L, dt, M, I_inv, g, loads)
         else:
             x, q, p, L = rk4_step(k, x, q, p, L, dt, M, I_inv, g, loads)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, q)
-        _put(out_v, k + 1, div(p, M))
-        _put(out_w, k + 1, omega_world(matrix_from_quat(q), I_inv, L))
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, q)
+        put_row(out_v, k + 1, div(p, M))
+        put_row(out_w, k + 1, omega_world(matrix_from_quat(q), I_inv, L))
 
 
 @jit
@@ -697,10 +698,10 @@ def run_splitting(x, q, p, L, dt, steps, M, axes, moments, I_inv, g, loads, out_
     """Rows 1..steps of x, q, v = p / M, w = R I_b^-1 R^T L (world) of symplectic-splitting."""
     for k in range(steps):
         x, q, p, L = splitting_step(k, x, q, p, L, dt, M, axes, moments, g, loads)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, q)
-        _put(out_v, k + 1, div(p, M))
-        _put(out_w, k + 1, omega_world(matrix_from_quat(q), I_inv, L))
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, q)
+        put_row(out_v, k + 1, div(p, M))
+        put_row(out_w, k + 1, omega_world(matrix_from_quat(q), I_inv, L))
 
 
 @jit
@@ -709,10 +710,10 @@ def run_semi_implicit(x, q, v, w_b, dt, steps, M, I_b, I_inv, g, loads, implicit
     """Rows 1..steps of x, q, v, w = R w_b (world) of the engines' map."""
     for k in range(steps):
         x, q, v, w_b = semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, q)
-        _put(out_v, k + 1, v)
-        _put(out_w, k + 1, matvec(matrix_from_quat(q), w_b))
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, q)
+        put_row(out_v, k + 1, v)
+        put_row(out_w, k + 1, matvec(matrix_from_quat(q), w_b))
 
 
 # --- from a Problem ----------------------------------------------------------------------------
@@ -731,11 +732,11 @@ def simulate_compiled(problem: Problem, integrator: str, dt: float, steps: int) 
     """``integrators.simulate(problem, integrator, dt, steps)`` by the compiled maps: the same
     Trajectory to rounding.  The initial state is formed in numpy exactly as the numpy loops form it.
     An old integrator name (``integrators.INTEGRATOR_ALIASES``) runs the map it now stands for."""
-    from .integrators import _initial, _time, canonical_integrator
+    from .integrators import canonical_integrator, initial_arrays, time_grid
 
     integrator = canonical_integrator(integrator)
 
-    M, I_b, I_inv, x, q, R, p, L, v, w = _initial(problem)
+    M, I_b, I_inv, x, q, R, p, L, v, w = initial_arrays(problem)
     loads = loads_of(problem, dt)
     g = problem.gravity
     M, dt, steps = float(M), float(dt), int(steps)  # one compiled signature whatever the caller passes
@@ -765,5 +766,5 @@ def simulate_compiled(problem: Problem, integrator: str, dt: float, steps: int) 
         out.angular_velocity[0] = np.array(problem.initial.angular_velocity, float)
         run_quat(scheme, vec(x), vec(q), vec(p), vec(L), dt, steps, M, mat(I_inv), vec(g), loads,
                  out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity)
-    out.t[:] = _time(dt, steps)
+    out.t[:] = time_grid(dt, steps)
     return out

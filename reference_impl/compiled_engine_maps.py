@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from .compiled import (_put, add, add4, cross, div, dot, jit, loads_of, mat, mat_add, mat_scale, mat_sub,
-                       matmul, matrix_from_quat, matvec, quat_from_rotvec, quat_multiply, scale,
-                       scale4, semi_implicit_velocities, skew, sub, transpose, vec, wrench)
+from .compiled import (add, add4, cross, div, dot, jit, loads_of, mat, mat_add, mat_scale, mat_sub, matmul,
+                       matrix_from_quat, matvec, put_row, quat_from_rotvec, quat_multiply, scale, scale4,
+                       semi_implicit_velocities, skew, sub, transpose, vec, wrench)
 from .conventions import Trajectory
 from .engine_maps import (BULLET_ANGULAR_MOTION_THRESHOLD, BULLET_SERIES_BELOW, BULLET_SIMD_EPSILON,
                           DART_EXPMAP_SERIES_BELOW, DEXPINV_SERIES_BELOW, ENGINE_MAPS, MJ_MINVAL,
@@ -75,8 +75,8 @@ def _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau):
 
 
 @jit
-def _mj_stage(q, v, w_b, h, c, v_prev, K_prev, a_prev, alpha_prev, M, I_b, I_inv, g, f, tau,
-              munthe_kaas, normalize_first):
+def _mj_stage(q, v, w_b, h, c, K_prev, a_prev, alpha_prev, M, I_b, I_inv, g, f, tau, munthe_kaas,
+              normalize_first):
     """Stage i of mujoco_rk4_step from stage i-1's slopes: (v_i, K_i, a_i, alpha_i)."""
     dK = scale(c, K_prev)
     q_i = mujoco_quat_integrate(q, dK, h, normalize_first)
@@ -113,13 +113,13 @@ def mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas, n
     f, tau = wrench(k, x, matrix_from_quat(q), loads)
     a1, alpha1 = _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau)
     f2, tau2 = _mj_stage_loads(k, x, q, h, 0.5, v, w_b, loads, normalize_first, f, tau, per_stage)
-    v2, K2, a2, alpha2 = _mj_stage(q, v, w_b, h, 0.5, v, w_b, a1, alpha1, M, I_b, I_inv, g, f2, tau2,
+    v2, K2, a2, alpha2 = _mj_stage(q, v, w_b, h, 0.5, w_b, a1, alpha1, M, I_b, I_inv, g, f2, tau2,
                                    munthe_kaas, normalize_first)
     f3, tau3 = _mj_stage_loads(k, x, q, h, 0.5, v2, K2, loads, normalize_first, f, tau, per_stage)
-    v3, K3, a3, alpha3 = _mj_stage(q, v, w_b, h, 0.5, v2, K2, a2, alpha2, M, I_b, I_inv, g, f3, tau3,
+    v3, K3, a3, alpha3 = _mj_stage(q, v, w_b, h, 0.5, K2, a2, alpha2, M, I_b, I_inv, g, f3, tau3,
                                    munthe_kaas, normalize_first)
     f4, tau4 = _mj_stage_loads(k, x, q, h, 1.0, v3, K3, loads, normalize_first, f, tau, per_stage)
-    v4, K4, a4, alpha4 = _mj_stage(q, v, w_b, h, 1.0, v3, K3, a3, alpha3, M, I_b, I_inv, g, f4, tau4,
+    v4, K4, a4, alpha4 = _mj_stage(q, v, w_b, h, 1.0, K3, a3, alpha3, M, I_b, I_inv, g, f4, tau4,
                                    munthe_kaas, normalize_first)
     v_new = add(v, scale(h, _rk4_combine(a1, a2, a3, a4)))
     w_new = add(w_b, scale(h, _rk4_combine(alpha1, alpha2, alpha3, alpha4)))
@@ -135,10 +135,10 @@ def run_mujoco_rk4(x, q, v, w_b, dt, steps, M, I_b, I_inv, g, loads, munthe_kaas
     for k in range(steps):
         x, q, v, w_b = mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas,
                                        normalize_first, per_stage)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, q)
-        _put(out_v, k + 1, v)
-        _put(out_w, k + 1, matvec(matrix_from_quat(q), w_b))
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, q)
+        put_row(out_v, k + 1, v)
+        put_row(out_w, k + 1, matvec(matrix_from_quat(q), w_b))
 
 
 # --- PyBullet maximal ----------------------------------------------------------------------------
@@ -257,10 +257,10 @@ def run_bullet_maximal(x, B, v, w, dt, steps, M, moments, Vt, q_V_inv, g, loads,
     """Rows 1..steps of x, q_body = getRotation(B) q_V^-1, v, w (world)."""
     for k in range(steps):
         x, B, v, w = implicit_gyro_split_torque_step(k, x, B, v, w, dt, M, moments, Vt, g, loads)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, quat_multiply(bullet_quat_from_matrix(B), q_V_inv))
-        _put(out_v, k + 1, v)
-        _put(out_w, k + 1, w)
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, quat_multiply(bullet_quat_from_matrix(B), q_V_inv))
+        put_row(out_v, k + 1, v)
+        put_row(out_w, k + 1, w)
 
 
 # --- DART ----------------------------------------------------------------------------------------
@@ -320,10 +320,10 @@ def run_dart(x, phi, v, w_b, dt, steps, M, I_b, I_inv, g, loads, out_x, out_q, o
     """Rows 1..steps of x, q = Exp(phi) (as the adapter reads the positions), v, w = expMapRot(phi) w_b."""
     for k in range(steps):
         x, phi, v, w_b = explicit_gyro_truncated_exp_step(k, x, phi, v, w_b, dt, M, I_b, I_inv, g, loads)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, quat_from_rotvec(phi))
-        _put(out_v, k + 1, v)
-        _put(out_w, k + 1, matvec(dart_exp_map_rot(phi), w_b))
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, quat_from_rotvec(phi))
+        put_row(out_v, k + 1, v)
+        put_row(out_w, k + 1, matvec(dart_exp_map_rot(phi), w_b))
 
 
 # --- PhysX 5 (SAPIEN) ----------------------------------------------------------------------------
@@ -371,10 +371,10 @@ def run_physx(x, q, v, w, dt, steps, M, moments, Vt, q_V_inv, g, loads, out_x, o
     """Rows 1..steps of x, q_body = q_principal q_V^-1 (the actor pose), v, w (world)."""
     for k in range(steps):
         x, q, v, w = explicit_gyro_rescaled_momentum_step(k, x, q, v, w, dt, M, moments, Vt, g, loads)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, quat_multiply(q, q_V_inv))
-        _put(out_v, k + 1, v)
-        _put(out_w, k + 1, w)
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, quat_multiply(q, q_V_inv))
+        put_row(out_v, k + 1, v)
+        put_row(out_w, k + 1, w)
 
 
 # --- Drake (pydrake MultibodyPlant) --------------------------------------------------------------
@@ -586,10 +586,10 @@ def run_newton(kind, x, q, v, w, dt, steps, M, I_b, I_inv, g, loads, out_x, out_
             x, q, v, w = quat_rate_pose_velocity_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads)
         else:
             x, q, v, w = explicit_gyro_rescaled_torque_last_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, q)
-        _put(out_v, k + 1, v)
-        _put(out_w, k + 1, w)
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, q)
+        put_row(out_v, k + 1, v)
+        put_row(out_w, k + 1, w)
 
 
 # --- Brax 0.14 --------------------------------------------------------------------------------------
@@ -652,13 +652,13 @@ def run_brax(x, q, v, w, dt, steps, M, I_b, I_inv, g, loads, kind, out_x, out_q,
     for k in range(steps):
         if kind == 0:
             x, q, v, w = explicit_gyro_regularised_exp_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads)
-            _put(out_w, k + 1, matvec(matrix_from_quat(q), w))
+            put_row(out_w, k + 1, matvec(matrix_from_quat(q), w))
         else:
             x, q, v, w = semi_implicit_no_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads, kind == 2)
-            _put(out_w, k + 1, w)
-        _put(out_x, k + 1, x)
-        _put(out_q, k + 1, q)
-        _put(out_v, k + 1, v)
+            put_row(out_w, k + 1, w)
+        put_row(out_x, k + 1, x)
+        put_row(out_q, k + 1, q)
+        put_row(out_v, k + 1, v)
 
 
 __all__ += ["BRAX_MAPS", "brax_integrate_free_rotation", "explicit_gyro_regularised_exp_step",
@@ -672,13 +672,13 @@ def simulate_compiled_engine_map(problem: Problem, name: str, dt: float, steps: 
     """``engine_maps.simulate_engine_map(problem, name, dt, steps, compiled=False, load_sampling)``
     by the compiled maps: the same Trajectory to rounding.  The initial state is formed in numpy
     as there."""
-    from .engine_maps import _start, dart_exp_map_rot as _numpy_exp_map_rot
+    from .engine_maps import initial_as_given, dart_exp_map_rot as _numpy_exp_map_rot
     from .rotations import quat_from_rotvec as _numpy_quat_from_rotvec, quat_multiply as _numpy_qmul
 
     if name not in ENGINE_MAPS:
         raise KeyError(name)
     per_stage = check_load_sampling(load_sampling) == LOAD_SAMPLING_PER_STAGE
-    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    M, I_b, I_inv, x, q, v, w, g = initial_as_given(problem)
     loads = loads_of(problem, dt)
     dt, steps = float(dt), int(steps)  # one compiled signature whatever the caller passes
     out = Trajectory.empty(steps + 1)

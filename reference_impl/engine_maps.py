@@ -889,7 +889,7 @@ __all__ += ["BRAX_ANGULAR_NORM_EPS", "brax_integrate_free_rotation", "explicit_g
 
 # --- whole runs -----------------------------------------------------------------------------------
 
-def _start(problem: Problem):
+def initial_as_given(problem: Problem):
     """(M, I_b, I_inv, x0, q0, v0, w0, g): the problem's constants and initial state as given (q0 not
     renormalised: an engine takes it as written)."""
     body, init = problem.body, problem.initial
@@ -901,7 +901,7 @@ def _start(problem: Problem):
 
 def _simulate_mujoco_rk4(problem: Problem, dt: float, steps: int, munthe_kaas: bool,
                          per_stage: bool = True) -> Trajectory:
-    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    M, I_b, I_inv, x, q, v, w, g = initial_as_given(problem)
     wrench = wrench_function(problem, dt)
     step = rkmk4_body_step if munthe_kaas else rk4_body_exp_step
     w_b = matrix_from_quat(q).T @ w
@@ -916,7 +916,7 @@ def _simulate_mujoco_rk4(problem: Problem, dt: float, steps: int, munthe_kaas: b
 
 
 def _simulate_bullet_maximal(problem: Problem, dt: float, steps: int) -> Trajectory:
-    M, I_b, _, x, q, v, w, g = _start(problem)
+    M, I_b, _, x, q, v, w, g = initial_as_given(problem)
     wrench = wrench_function(problem, dt)
     moments, V, q_V = principal_frame(I_b)
     q_V_inv = quat_conjugate(q_V)
@@ -933,7 +933,7 @@ def _simulate_bullet_maximal(problem: Problem, dt: float, steps: int) -> Traject
 
 
 def _simulate_dart(problem: Problem, dt: float, steps: int) -> Trajectory:
-    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    M, I_b, I_inv, x, q, v, w, g = initial_as_given(problem)
     wrench = wrench_function(problem, dt)
     phi = dart_log_map(matrix_from_quat(q))  # Joint::setTransform -> convertToPositions
     w_b = dart_exp_map_rot(phi).T @ w
@@ -950,7 +950,7 @@ def _simulate_dart(problem: Problem, dt: float, steps: int) -> Trajectory:
 
 
 def _simulate_physx(problem: Problem, dt: float, steps: int) -> Trajectory:
-    M, I_b, _, x, q, v, w, g = _start(problem)
+    M, I_b, _, x, q, v, w, g = initial_as_given(problem)
     wrench = wrench_function(problem, dt)
     moments, V, q_V = physx_principal_frame(I_b)
     q_V_inv = quat_conjugate(q_V)
@@ -969,7 +969,7 @@ def _simulate_drake(problem: Problem, dt: float, steps: int, name: str,
                     per_stage: bool = True) -> Trajectory:
     """A Drake map on Drake's state y = [q, x, w, v] from the case's state as written (q not
     renormalised); the trajectory holds q / |q| as the adapter reads it (the stored norm drifts)."""
-    M, I_b, _, x, q, v, w, g = _start(problem)
+    M, I_b, _, x, q, v, w, g = initial_as_given(problem)
     wrench = wrench_function(problem, dt)
     y = np.concatenate([q, x, w, v])
     out = Trajectory.empty(steps + 1)
@@ -993,7 +993,7 @@ NEWTON_STEPS = {"quat-rate-cayley-gyro": quat_rate_cayley_gyro_step,
 
 def _simulate_newton(problem: Problem, dt: float, steps: int, name: str) -> Trajectory:
     """A Newton map from the case's state as written (q not renormalised, as the adapter writes it)."""
-    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    M, I_b, I_inv, x, q, v, w, g = initial_as_given(problem)
     wrench = wrench_function(problem, dt)
     step = NEWTON_STEPS[name]
     out = Trajectory.empty(steps + 1)
@@ -1009,7 +1009,7 @@ def _simulate_newton(problem: Problem, dt: float, steps: int, name: str) -> Traj
 def _simulate_brax(problem: Problem, dt: float, steps: int, name: str) -> Trajectory:
     """A Brax map from the case's state as written; ``explicit-gyro-regularised-exp`` carries the
     body-frame w (Brax's qd) and reports R w_b, the others the world-frame w (Brax's xd_i)."""
-    M, I_b, I_inv, x, q, v, w, g = _start(problem)
+    M, I_b, I_inv, x, q, v, w, g = initial_as_given(problem)
     wrench = wrench_function(problem, dt)
     generalized = name == "explicit-gyro-regularised-exp"
     if generalized:

@@ -80,8 +80,9 @@ class Integrator:
     simulate: Callable[[Problem, float, int], Trajectory]
 
 
-def _initial(problem: Problem):
-    """(M, I_b, I_b^-1, x0, q0, R0, p0, L0, v0, w0) in canonical frames."""
+def initial_arrays(problem: Problem):
+    """(M, I_b, I_b^-1, x0, q0, R0, p0, L0, v0, w0) in canonical frames (q0 normalised): the
+    start of every reference integrator (also the compiled ones and the reference adapter's)."""
     body, init = problem.body, problem.initial
     M = body.mass
     I_b = body.I_body
@@ -93,7 +94,8 @@ def _initial(problem: Problem):
     return M, I_b, body.I_body_inv, np.array(init.position, float), q0, R0, M * v0, L0, v0, w0
 
 
-def _time(dt: float, steps: int) -> np.ndarray:
+def time_grid(dt: float, steps: int) -> np.ndarray:
+    """t_k = k dt, k = 0 .. steps (s), shape (steps + 1,)."""
     return np.arange(steps + 1) * dt
 
 
@@ -188,7 +190,7 @@ def integrate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool =
     drifts from orthonormal without Gram-Schmidt), p (steps+1, 3) kg m/s world, L (steps+1, 3)
     kg m^2/s world about the COM.
     """
-    M, I_b, I_inv, x, q, R, p, L, _, _ = _initial(problem)
+    M, I_b, I_inv, x, q, R, p, L, _, _ = initial_arrays(problem)
     wrench = wrench_function(problem, dt)
     Mg = M * problem.gravity
     xs = np.empty((steps + 1, 3)); Rs = np.empty((steps + 1, 3, 3))
@@ -210,7 +212,7 @@ def matrix_outputs(Rs: np.ndarray, Ls: np.ndarray, I_inv: np.ndarray):
 def _simulate_euler_matrix(problem: Problem, dt: float, steps: int, gram: bool) -> Trajectory:
     xs, Rs, ps, Ls = integrate_euler_matrix(problem, dt, steps, gram)
     quats, ws, ortho = matrix_outputs(Rs, Ls, problem.body.I_body_inv)
-    return Trajectory(_time(dt, steps), xs, quats, ps / problem.body.mass, ws, ortho)
+    return Trajectory(time_grid(dt, steps), xs, quats, ps / problem.body.mass, ws, ortho)
 
 
 _QUAT_STEPS = {"euler-quat": euler_quat_step, "lie-euler": lie_euler_step, "rk4": rk4_step,
@@ -221,7 +223,7 @@ _QUAT_STEPS = {"euler-quat": euler_quat_step, "lie-euler": lie_euler_step, "rk4"
 def _simulate_quat(problem: Problem, dt: float, steps: int, scheme: str) -> Trajectory:
     """euler-quat, lie-euler, rk4, symplectic-splitting, implicit-midpoint and rkmk4: all on
     (x, q, p, L)."""
-    M, I_b, I_inv, x, q, _, p, L, _, _ = _initial(problem)
+    M, I_b, I_inv, x, q, _, p, L, _, _ = initial_arrays(problem)
     wrench = wrench_function(problem, dt)
     g = problem.gravity
     step = _QUAT_STEPS[scheme]
@@ -236,12 +238,12 @@ def _simulate_quat(problem: Problem, dt: float, steps: int, scheme: str) -> Traj
         out.position[k + 1], out.quaternion_wxyz[k + 1] = x, q
         out.linear_velocity[k + 1] = p / M
         out.angular_velocity[k + 1] = R @ I_inv @ R.T @ L
-    out.t[:] = _time(dt, steps)
+    out.t[:] = time_grid(dt, steps)
     return out
 
 
 def _simulate_semi_implicit(problem: Problem, dt: float, steps: int, implicit_gyro: bool) -> Trajectory:
-    M, I_b, I_inv, x, q, R, _, _, v, w = _initial(problem)
+    M, I_b, I_inv, x, q, R, _, _, v, w = initial_arrays(problem)
     wrench = wrench_function(problem, dt)
     g = problem.gravity
     w_b = R.T @ w
@@ -251,7 +253,7 @@ def _simulate_semi_implicit(problem: Problem, dt: float, steps: int, implicit_gy
         x, q, v, w_b = semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, wrench, implicit_gyro)
         out.position[k + 1], out.quaternion_wxyz[k + 1], out.linear_velocity[k + 1] = x, q, v
         out.angular_velocity[k + 1] = matrix_from_quat(q) @ w_b
-    out.t[:] = _time(dt, steps)
+    out.t[:] = time_grid(dt, steps)
     return out
 
 

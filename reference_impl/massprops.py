@@ -40,7 +40,9 @@ SIZE_DOC = {
 """shape -> its size convention in one line (for messages and ``--help``)."""
 
 
-def _check(shape: str, size) -> np.ndarray:
+def checked_size(shape: str, size) -> np.ndarray:
+    """``size`` as a flat float array with the entries ``shape`` takes (:data:`SHAPES`), or
+    ValueError naming the shape's size convention."""
     if shape not in SHAPES:
         raise ValueError(f"unknown shape {shape!r}; known: {', '.join(SHAPES)}")
     s = np.asarray(size, dtype=float).reshape(-1)
@@ -51,7 +53,7 @@ def _check(shape: str, size) -> np.ndarray:
 
 def volume(shape: str, size) -> float:
     """Volume, m^3, of ``shape`` with ``size`` (m; see the module docstring for the conventions)."""
-    s = _check(shape, size)
+    s = checked_size(shape, size)
     if shape == "box":
         return float(s[0] * s[1] * s[2])
     if shape == "sphere":
@@ -84,7 +86,7 @@ def inertia(shape: str, size, mass: float) -> np.ndarray:
     ndarray, shape (3, 3)
         kg m^2, about the COM (the body origin), body frame; diagonal (the body axes are principal).
     """
-    s = _check(shape, size)
+    s = checked_size(shape, size)
     m = float(mass)
     if shape == "box":
         x, y, z = s

@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .massprops import SHAPES, _check
+from .massprops import SHAPES, checked_size
 from .mesh import TriangleMesh
 
 
 def bounds(shape: str, size) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounding box of the shape: (lo, hi), each shape (3,), m, body frame."""
-    s = _check(shape, size)
+    s = checked_size(shape, size)
     if shape == "box":
         half = s / 2.0
     elif shape == "sphere":
@@ -40,7 +40,7 @@ def contains(shape: str, size, points: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (n,), bool: the point lies in the closed solid.
     """
-    s = _check(shape, size)
+    s = checked_size(shape, size)
     p = np.asarray(points, dtype=float).reshape(-1, 3)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
     rho2 = x * x + y * y
@@ -109,7 +109,7 @@ def tessellate(shape: str, size, n: int) -> TriangleMesh:
     TriangleMesh in the body frame of :mod:`massprops` (m); its volume converges to the shape's
     as O(1/n^2).
     """
-    s = _check(shape, size)
+    s = checked_size(shape, size)
     if n < 3:
         raise ValueError(f"tessellation needs n >= 3 segments, got {n}")
     if shape == "box":

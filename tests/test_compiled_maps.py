@@ -121,7 +121,7 @@ def test_wrench_is_problem_wrench_on_every_step(b):
 
 
 def _initial_state(scheme: str, pb: Problem) -> tuple:
-    M, I_b, I_inv, x, q, R, p, L, v, w = ref._initial(pb)
+    M, I_b, I_inv, x, q, R, p, L, v, w = ref.initial_arrays(pb)
     if scheme.startswith("euler-matrix"):
         return x, R, p, L
     if scheme.startswith("semi-implicit"):

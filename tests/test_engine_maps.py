@@ -176,7 +176,7 @@ def _tuples(state) -> tuple:
 def _steps(name: str, pb: Problem, dt: float, per_stage: bool = True):
     """(initial state in the map's variables, numpy step, compiled step), steps as f(k, state);
     ``per_stage``: the load sampling of a multi-stage map (E.MULTI_STAGE_MAPS)."""
-    M, I_b, I_inv, x, q, v, w, g = E._start(pb)
+    M, I_b, I_inv, x, q, v, w, g = E.initial_as_given(pb)
     wrench, loads = wrench_function(pb, dt), C.loads_of(pb, dt)
     I_b_c, I_inv_c, g_c = C.mat(I_b), C.mat(I_inv), C.vec(g)
     if name in ("rkmk4-body", "rk4-body-exp"):

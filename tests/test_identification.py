@@ -12,7 +12,7 @@ from freebody import tolerances as tol
 from freebody.adapters.base import is_available, load_adapter
 from freebody.input import load_case
 from freebody.reference_impl.dynamics import rigid_body_derivative, wrench_function
-from freebody.reference_impl.integrators import INTEGRATORS, _initial, simulate
+from freebody.reference_impl.integrators import INTEGRATORS, initial_arrays, simulate
 from freebody.reference_impl.rotations import matrix_from_quat, quat_normalize
 from freebody.reference_impl.conventions import Trajectory
 from freebody.report import data as rd
@@ -62,7 +62,7 @@ def _engine_run(engine, pb, integrator, dt, steps) -> Trajectory:
 def _midpoint(pb, dt, steps) -> Trajectory:
     """A second-order Runge-Kutta (explicit midpoint) on (x, q, p, L), q renormalised: a map that is
     not rk4, as close to it as a second-order scheme is."""
-    M, I_b, I_inv, x, q, _, p, L, _, _ = _initial(pb)
+    M, I_b, I_inv, x, q, _, p, L, _, _ = initial_arrays(pb)
     wrench, g = wrench_function(pb, dt), pb.gravity
     out = Trajectory.empty(steps + 1)
     out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0] = x, q, p / M
