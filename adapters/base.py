@@ -27,6 +27,10 @@ from .loads import LoadSchedule, Segment
 
 ENTRY_POINT_GROUP = "freebody.adapters"
 
+# One live check of an engine trap (:meth:`Adapter.trap_checks`): builds what it needs, runs the
+# engine and returns (passed, measured value or None, bound, one sentence).
+TrapCheck = Callable[[], tuple[bool, float | None, float, str]]
+
 
 class EngineMissing(Exception):
     """The engine's Python package is not installed (the run is ``skipped``)."""
@@ -91,8 +95,16 @@ class Adapter(ABC):
         state at the step's start, held over the step); ``load_sampling_note`` says how, in one
         line (``freebody conventions``).  Identification compares a run with the engine maps'
         variant of the same rule (:meth:`run_load_sampling` may refine it per case).
+      integrator_aliases : old integrator names still taken, old -> current (never offered).
+      step_rotation_cap_rad : the engine's cap on the angle one step turns through, or None.
+      supports_batch : whether :meth:`simulate_batch` steps many bodies at once.
 
-    An instance is one run: ``Adapter(problem, dt, integrator, precision)`` checks the integrator
+    Every member the harness reads is declared here with its default (docs/adapters.md, "Members",
+    lists them; tests/test_adapter_contract_docs.py keeps the two in step), so the harness reads
+    them directly, never with ``getattr`` and a default of its own.
+
+    An instance is one run: ``Adapter(problem, dt, integrator, precision)`` takes an old integrator
+    name for its current one (``integrator_aliases``), checks the integrator
     and precision (:class:`UnsupportedOption`), builds the load schedule ``self.loads`` and calls
     :meth:`build`.  The one required way to step is :meth:`advance`; the harness calls
     :meth:`chunks` (a long run delivered piece by piece) or :meth:`simulate` (whole).  ``settings``
@@ -112,6 +124,10 @@ class Adapter(ABC):
     compare_with: ClassVar[str | None] = None
     supported_versions: ClassVar[str | None] = None
     opt_in_integrators: ClassVar[tuple[str, ...]] = ()
+    # Old integrator names the engine still takes, old -> current (the reference engine's
+    # "symplectic-euler" -> "lie-euler"): never offered; ``--integrator`` and the constructor
+    # take an old name for its current one (with a deprecation warning on the command line).
+    integrator_aliases: ClassVar[dict[str, str]] = {}
     load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STEP
     load_sampling_note: ClassVar[str] = ""
     # The largest angle (rad) one step turns the body through, when the engine caps it (Bullet's
@@ -122,6 +138,7 @@ class Adapter(ABC):
     supports_batch: ClassVar[bool] = False
 
     def __init__(self, problem: Problem, dt: float, integrator: str, precision: str = "float64"):
+        integrator = self.integrator_aliases.get(integrator, integrator)
         offered = self.offered_integrators()
         if integrator not in offered:
             raise UnsupportedOption(f"{self.name} {self.engine_version()} has no integrator "
@@ -183,7 +200,7 @@ class Adapter(ABC):
         return cls.integrators
 
     @classmethod
-    def trap_checks(cls) -> dict[str, Callable[[], tuple[bool, float | None, float, str]]]:
+    def trap_checks(cls) -> dict[str, TrapCheck]:
         """Live checks of the engine's own traps that the adapter handles (a hidden damping, a
         velocity clamp, sleeping, a quaternion never renormalised...): name -> a function that
         builds what it needs, runs the engine and returns (passed, measured value, bound, one
@@ -410,7 +427,7 @@ def engine_names() -> list[str]:
 
 def default_engine_names() -> list[str]:
     """The engines ``freebody run`` runs when none is named (registry entries with ``default``)."""
-    return [name for name, entry in registry().items() if getattr(entry, "default", True)]
+    return [name for name, entry in registry().items() if entry.default]
 
 
 # A versioned engine name: the engine (or its pip distribution) then a PEP 440 version specifier,
@@ -510,14 +527,14 @@ def version_in(version: str, specifier: str) -> bool | None:
     return True
 
 
-def unsupported_version(cls, version: str | None) -> str | None:
+def unsupported_version(cls: type[Adapter], version: str | None) -> str | None:
     """Why the adapter class cannot drive this engine version (the reason a run is skipped), or
     None: the version is in ``cls.supported_versions`` (or either is unknown)."""
-    supported = getattr(cls, "supported_versions", None)
+    supported = cls.supported_versions
     if not supported or version is None or version_in(str(version), supported) is not False:
         return None
-    entry = registry().get(getattr(cls, "name", ""), None)
-    dist = entry.distribution if entry is not None else getattr(cls, "name", "the engine")
+    entry = registry().get(cls.name, None)
+    dist = entry.distribution if entry is not None else cls.name
     return (f"{cls.name} {version} is not supported: freebody's {cls.name} adapter drives "
             f"{dist}{supported} (e.g. --engine '{cls.name}{supported.split(',')[0]}')")
 

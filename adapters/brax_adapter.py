@@ -118,7 +118,7 @@ from freebody.reference_impl.integrators import simulate
 from freebody.reference_impl.problem import Body, InitialState, Load, Problem
 from freebody.reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_from_matrix,
                                                quat_from_rotvec, quat_multiply)
-from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP
+from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP, TrapCheck
 from .jax_runtime import LOAD_ROW, compiled, current_x64, load_rows, quat_matrix, x64_scope
 from .mjcf import alignfree_default, format_floats, free_joint_trajectory, inertial_element
 from .mjx_adapter import full_pattern
@@ -563,7 +563,7 @@ class BraxAdapter(Adapter):
 
     # --- live checks of the traps this adapter handles -------------------------------------------
     @classmethod
-    def trap_checks(cls) -> dict[str, Callable[[], tuple[bool, float | None, float, str]]]:
+    def trap_checks(cls) -> dict[str, TrapCheck]:
         return {
             "angular velocity: qd[3:6] is body frame": _check_body_frame_w,
             "no damping left on (ang/vel_damping, exp(d h) per step)": _check_damping,

@@ -121,7 +121,7 @@ from freebody.reference_impl.problem import Body, InitialState, Problem
 from freebody.reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec
 from freebody.reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
 from freebody.reference_impl.truth import truth_trajectory
-from .base import Adapter, EngineDiverged, distribution_version
+from .base import Adapter, EngineDiverged, TrapCheck, distribution_version
 from .loads import LoadSchedule
 
 # --- this adapter's tolerances, each with its reason (the harness's rules: freebody/tolerances.py;
@@ -572,7 +572,7 @@ class DrakeAdapter(Adapter):
                 setattr(self, attr, None)
 
     @classmethod
-    def trap_checks(cls) -> dict[str, Callable[[], tuple[bool, float | None, float, str]]]:
+    def trap_checks(cls) -> dict[str, TrapCheck]:
         return {
             "quaternion norm drift read raw, not hidden": _check_norm_drift,
             "target accuracy labelled: no error bound, RK5 retries stale": _check_target_accuracy,

@@ -126,7 +126,7 @@ import newton  # ModuleNotFoundError "newton": the registry reports the engine m
 from freebody.reference_impl.conventions import Trajectory, quat_wxyz_from_xyzw, quat_xyzw_from_wxyz
 from freebody.reference_impl.problem import Body, InitialState, Load, Problem
 from freebody.reference_impl.rotations import geodesic_angle, matrix_from_quat, quat_from_rotvec, quat_multiply
-from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP
+from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP, TrapCheck
 from .capture import capture_output
 from .loads import Segment
 
@@ -164,7 +164,8 @@ _SOLVERS: dict[str, str] = {
     "kamino": "SolverKamino",
 }
 # The MuJoCo solver's integrators: freebody name -> SolverMuJoCo(integrator=...), and the MuJoCo
-# adapter's integrator of the same scheme (what a run of it is compared with, see compared_run()).
+# adapter's integrator of the same scheme (the C MuJoCo integrator a run of it ports; not compared
+# run by run: ``compare_with`` is one engine per adapter class, so it is left None).
 _MUJOCO_INTEGRATORS: dict[str, tuple[str, str]] = {
     "mujoco-euler": ("euler", "Euler"),
     "mujoco-rk4": ("rk4", "RK4"),
@@ -301,16 +302,6 @@ class NewtonAdapter(Adapter):
         Checked: kamino (exponential map, rescaled momentum), which passes all five: slow (about
         80 s, 2200 steps of ~35 ms)."""
         return tuple(i for i in cls.offered_integrators() if i == "kamino")
-
-    @classmethod
-    def compared_run(cls, integrator: str) -> tuple[str, str] | None:
-        """(engine, integrator) whose float64 run a run of ``integrator`` ports: the MuJoCo
-        solver's integrators port C MuJoCo's (``mujoco-euler`` -> ("mujoco", "Euler")); None for
-        Newton's own solvers.  (``compare_with`` is one engine per adapter class; the harness
-        does not ask this yet.)"""
-        if integrator in _MUJOCO_INTEGRATORS:
-            return "mujoco", _MUJOCO_INTEGRATORS[integrator][1]
-        return None
 
     # --- building -------------------------------------------------------------------------------
     def build(self) -> None:
@@ -507,7 +498,7 @@ class NewtonAdapter(Adapter):
 
     # --- live checks of the traps this adapter handles ------------------------------------------
     @classmethod
-    def trap_checks(cls) -> dict[str, Callable[[], tuple[bool, float | None, float, str]]]:
+    def trap_checks(cls) -> dict[str, TrapCheck]:
         return {
             "semi-implicit angular damping (0.05) off": _check_semi_implicit_damping,
             "steel angular damping (0.05) off": _check_steel_damping,

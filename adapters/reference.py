@@ -104,7 +104,8 @@ class ReferenceAdapter(Adapter):
     name: ClassVar[str] = "reference"
     import_name: ClassVar[str] = "numpy"
     integrators: ClassVar[tuple[str, ...]] = tuple(INTEGRATORS)
-    # old name -> current name, accepted and not offered (``--integrator symplectic-euler``)
+    # old name -> current name, accepted and not offered (``--integrator symplectic-euler``; the
+    # base constructor takes an old name for its current one)
     integrator_aliases: ClassVar[dict[str, str]] = INTEGRATOR_ALIASES
     load_sampling: ClassVar[str] = LOAD_SAMPLING_PER_STAGE
     load_sampling_note: ClassVar[str] = ("every stage of rk4 / rkmk4 evaluates the loads at its own state; one-"
@@ -117,9 +118,6 @@ class ReferenceAdapter(Adapter):
         "damping": "none",
         "sleeping": "none",
     }
-
-    def __init__(self, problem, dt, integrator, *args, **kwargs):
-        super().__init__(problem, dt, canonical_integrator(integrator), *args, **kwargs)
 
     @classmethod
     def engine_version(cls) -> str:

@@ -93,7 +93,7 @@ from freebody.reference_impl.engine_maps import physx_principal_frame
 from freebody.reference_impl.problem import Body, InitialState, Problem
 from freebody.reference_impl.rotations import (geodesic_angle, matrix_from_quat, quat_from_matrix, quat_from_rotvec,
                                                quat_multiply)
-from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP
+from .base import Adapter, distribution_version, LOAD_SAMPLING_PER_STEP, TrapCheck
 from .loads import Segment
 
 # --- this adapter's tolerances, each with its reason (the harness's rules: freebody/tolerances.py;
@@ -409,7 +409,7 @@ class SapienAdapter(Adapter):
 
     # --- live checks of the traps this adapter handles --------------------------------------------
     @classmethod
-    def trap_checks(cls) -> dict[str, Callable[[], tuple[bool, float | None, float, str]]]:
+    def trap_checks(cls) -> dict[str, TrapCheck]:
         return {
             "angular velocity clamp (100 rad/s) lifted": _check_clamp,
             "angular damping (0.05) off": _check_damping,

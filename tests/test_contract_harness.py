@@ -138,3 +138,50 @@ def test_no_harness_module_imports_an_engine_or_dispatches_on_its_name():
                     if isinstance(sub, ast.Constant) and sub.value in names:
                         found.append(f"{path.name}:{node.lineno} compares with {sub.value!r}")
     assert not found, "engine-specific code in the harness:\n" + "\n".join(found)
+
+
+def _adapter_member_names() -> set[str]:
+    """Every public name the contract declares (``Adapter``, ``SteppedAdapter``, ``EngineEntry``)
+    and every public class-level name a built-in adapter class defines (read from its source)."""
+    import ast
+    import importlib.util
+    import pathlib
+
+    from freebody.adapters.base import ENGINES, Adapter, EngineEntry, SteppedAdapter
+
+    names = {n for c in (Adapter, SteppedAdapter) for n in (*vars(c), *vars(c).get("__annotations__", {}))}
+    names |= set(EngineEntry._fields) | {"distribution"}
+    for entry in ENGINES.values():
+        tree = ast.parse(pathlib.Path(importlib.util.find_spec(entry.module).origin).read_text())
+        for cls in (n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == entry.cls):
+            for node in cls.body:
+                if isinstance(node, (ast.FunctionDef, ast.AnnAssign, ast.Assign)):
+                    targets = (node.targets if isinstance(node, ast.Assign) else
+                               [node.target] if isinstance(node, ast.AnnAssign) else [node])
+                    names |= {getattr(t, "id", getattr(t, "name", "")) for t in targets}
+    return {n for n in names if n and not n.startswith("_")}
+
+
+def test_the_harness_reads_adapters_only_through_the_declared_contract():
+    """No ``getattr(cls, "member", default)`` or ``hasattr(cls, "member")`` on an adapter class,
+    an adapter or a registry entry in the harness (freebody/ and the registry in
+    adapters/base.py): every member it reads is declared on ``Adapter`` or ``EngineEntry`` with
+    its default (docs/adapters.md "Members"), so it reads ``cls.member``.  Fails on
+    ``getattr(load_adapter(e), "integrator_aliases", None)``."""
+    import ast
+    import pathlib
+
+    import freebody.adapters
+    from freebody.adapters import base
+
+    members = _adapter_member_names()
+    adapters_dir = pathlib.Path(freebody.adapters.__file__).parent
+    paths = [p for p in _harness_modules() if adapters_dir not in p.parents] + [pathlib.Path(base.__file__)]
+    found = []
+    for path in paths:
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if (isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+                    and node.func.id in ("getattr", "hasattr") and len(node.args) >= 2
+                    and isinstance(node.args[1], ast.Constant) and node.args[1].value in members):
+                found.append(f"{path.name}:{node.lineno} {ast.unparse(node)}")
+    assert not found, "the harness reads adapter members around the contract:\n" + "\n".join(found)

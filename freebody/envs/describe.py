@@ -69,9 +69,8 @@ def describe_here(engine: str, entry: dict | None = None) -> dict:
             version = str(cls.engine_version())
             out.update(version=version, integrators=list(cls.offered_integrators()),
                        precisions=list(cls.precisions), available=True,
-                       opt_in=list(getattr(cls, "opt_in_integrators", ()) or ()))
-            unsupported = getattr(base, "unsupported_version", None)  # the adapter's version range
-            out["unsupported"] = unsupported(cls, version) if unsupported is not None else None
+                       opt_in=list(cls.opt_in_integrators))
+            out["unsupported"] = base.unsupported_version(cls, version)  # the adapter's version range
     except UnknownEngine as e:
         out["error"] = str(e.args[0]) if e.args else str(e)
     except Exception as e:

@@ -466,9 +466,8 @@ def engine_conventions(doc: dict) -> list[tuple[str, str, str]]:
                 raise LookupError
             with capture_output():
                 cls = load_adapter(base_engine(engine))
-            rows = list((getattr(cls, "conventions", None) or {}).items())
-            if hasattr(cls, "load_sampling_text"):  # where inside a step the loads are evaluated
-                rows.append(("load sampling", cls.load_sampling_text()))
+            rows = list(cls.conventions.items())
+            rows.append(("load sampling", cls.load_sampling_text()))  # where in a step the loads act
         except Exception:
             out.append((engine, "-", "not installed here (or run in an isolated environment): see "
                                      f"freebody conventions --engine {engine}"))

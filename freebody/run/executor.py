@@ -234,7 +234,7 @@ class LocalPool:
                         "preimport": [e for e in engines if e not in self.interpreters], "store": self.store,
                         "env": {}}
         for entry in self.options["engines"].values():
-            var = getattr(entry, "cache_env", None)
+            var = entry.cache_env
             if self.store is not None and var and var not in os.environ:
                 # workers share a JIT engine's compiled programs (mjx compiles for seconds per
                 # integrator and precision); the cache goes with the store at close()

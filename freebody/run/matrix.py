@@ -60,7 +60,7 @@ def engine_opt_in(engine: str) -> tuple[str, ...]:
         return ()
     try:
         with capture_output():
-            return tuple(getattr(load_adapter(engine), "opt_in_integrators", ()) or ())
+            return tuple(load_adapter(engine).opt_in_integrators)
     except Exception:
         return ()
 
@@ -116,10 +116,9 @@ def integrator_aliases(engine: str) -> dict[str, str]:
     {} when it has none or its adapter does not load."""
     try:
         with capture_output():
-            aliases = getattr(load_adapter(engine), "integrator_aliases", None)
+            return dict(load_adapter(engine).integrator_aliases)
     except Exception:
         return {}
-    return dict(aliases) if isinstance(aliases, dict) else {}
 
 
 def _current_name(engine: str, offered: tuple[str, ...], name: str) -> str:
