@@ -32,6 +32,8 @@ from .mesh import TriangleMesh
 
 DEFAULT_SEED = 0  # the particle sample's seed when none is given: results are reproducible
 _CHUNK_ELEMENTS = 2_000_000  # (columns x triangles) per vectorised block: ~100 MB of temporaries
+# N side / longest that is an integer up to round-off (a cube's sides) is not rounded up past it
+_CEIL_SLACK = 1e-9
 
 
 @dataclass(frozen=True)
@@ -184,14 +186,25 @@ def mesh_winding_grid(mesh: TriangleMesh, xs, ys, zs) -> np.ndarray:
 
 # --- the approximations -------------------------------------------------------------------------
 
+def grid_counts(lo, hi, resolution: int) -> tuple[int, int, int]:
+    """Cells along x, y, z of the grid at ``resolution`` tiling the box ``lo``..``hi`` (each (3,),
+    m): N = ``resolution`` along the longest side, ceil(N side / longest) (at least 1) along the
+    others.  The particle and voxel approximations use it, and so does
+    :func:`freebody.run.budget.grid_cells` to estimate their cost before they start.  ValueError
+    when the box has no extent."""
+    ext = [float(h) - float(l) for l, h in zip(lo, hi)]
+    longest = max(ext)
+    if not longest > 0:
+        raise ValueError(f"the box {list(lo)}..{list(hi)} has no extent")
+    return tuple(max(1, math.ceil(int(resolution) * e / longest - _CEIL_SLACK)) for e in ext)
+
+
 def _grid(solid: Solid, resolution: int):
     """Cell edges h (3,), counts (3,) and the grid's lower corner (3,) tiling the bounding box."""
     if isinstance(resolution, bool) or int(resolution) != resolution or resolution < 1:
         raise ValueError(f"resolution must be an integer >= 1, got {resolution!r}")
-    ext = solid.hi - solid.lo
-    longest = float(ext.max())
-    counts = np.array([max(1, math.ceil(int(resolution) * e / longest - 1e-9)) for e in ext])
-    return ext / counts, counts, solid.lo.copy()
+    counts = np.array(grid_counts(solid.lo, solid.hi, resolution))
+    return (solid.hi - solid.lo) / counts, counts, solid.lo.copy()
 
 
 def _summarise(method, resolution, h, n_cells, points, cell_mass, own_inertia):

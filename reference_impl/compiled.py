@@ -48,6 +48,7 @@ from . import rotations
 from .conventions import Trajectory
 from .lie_integrators import MIDPOINT_MAX_ITERATIONS, MIDPOINT_RTOL, RK4_B, RK4_C
 from .problem import Problem
+from .rotations import EXP_SERIES_ANGLE_RAD
 
 __all__ = ["Loads", "loads_of", "simulate_compiled", "wrench", "euler_matrix_step", "euler_quat_step",
            "lie_euler_step", "rk4_step", "semi_implicit_step", "free_rotation", "splitting_step",
@@ -186,7 +187,7 @@ def quat_from_rotvec(phi):
     angles (as rotations.quat_from_rotvec)."""
     angle = norm(phi)
     half = 0.5 * angle
-    if angle < 1e-4:  # sin(a/2)/a = 1/2 - a^2/48 + a^4/3840 - ...
+    if angle < EXP_SERIES_ANGLE_RAD:  # sin(a/2)/a = 1/2 - a^2/48 + a^4/3840 - ...
         k = 0.5 - angle * angle / 48.0 + angle ** 4 / 3840.0
     else:
         k = math.sin(half) / angle

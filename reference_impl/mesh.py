@@ -72,10 +72,6 @@ class TriangleMesh:
         used = self.vertices[np.unique(self.triangles)]
         return used.min(axis=0), used.max(axis=0)
 
-    def translated(self, offset) -> "TriangleMesh":
-        """The same mesh moved by ``offset`` (3,), m."""
-        return TriangleMesh(self.vertices + np.asarray(offset, dtype=float), self.triangles)
-
 
 @dataclass(frozen=True)
 class PolyhedronProperties:

@@ -6,6 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
+# Below this rotation angle (rad) Exp takes sin(a/2)/a from its series 1/2 - a^2/48 + a^4/3840:
+# the first term left out, a^6/645120, is under 2e-30 there (far below round-off), and at a = 0
+# sin(a/2)/a cannot be evaluated.  compiled.quat_from_rotvec uses the same cut-off.
+EXP_SERIES_ANGLE_RAD = 1e-4
+
 __all__ = [
     "skew", "quat_multiply", "quat_conjugate", "quat_normalize", "matrix_from_quat",
     "quat_from_matrix", "quat_from_rotvec", "rotvec_from_quat", "geodesic_angle",
@@ -97,7 +102,7 @@ def quat_from_rotvec(phi: np.ndarray) -> np.ndarray:
     phi = np.asarray(phi, dtype=float)
     angle = np.linalg.norm(phi, axis=-1, keepdims=True)
     half = 0.5 * angle
-    small = angle < 1e-4
+    small = angle < EXP_SERIES_ANGLE_RAD
     # sin(a/2)/a; series 1/2 - a^2/48 + a^4/3840 for small a
     safe = np.where(small, 1.0, angle)
     k = np.where(small, 0.5 - angle**2 / 48.0 + angle**4 / 3840.0, np.sin(half) / safe)

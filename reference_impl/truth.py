@@ -24,8 +24,6 @@ from .rotations import matrix_from_quat, quat_multiply, quat_normalize
 NUMERICAL_RTOL = 1e-12  # DOP853 relative tolerance (about 6e-10 rad over 10 s on Dzhanibekov)
 NUMERICAL_ATOL = 1e-12  # DOP853 absolute tolerance
 
-TRUTH_KINDS = ("closed-form", "numerical")
-
 
 def truth_kind(problem: Problem) -> str:
     """The oracle used for a problem: closed form when no loads act, numerical otherwise."""

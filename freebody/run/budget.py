@@ -156,10 +156,9 @@ def check_inertia(cells: int, method: str, mesh: bool, force: bool = False) -> E
 
 def grid_cells(lo, hi, resolution: int) -> int:
     """Cells of the particle/voxel grid at ``resolution`` over the box lo..hi, as
-    :mod:`freebody.reference_impl.approx` tiles it: N along the longest side, ceil(N side / L) along
-    the others."""
-    ext = [float(h) - float(l) for l, h in zip(lo, hi)]
-    longest = max(ext)
-    if not longest > 0:
+    :func:`freebody.reference_impl.approx.grid_counts` tiles it (1 for a box without extent)."""
+    from ..reference_impl.approx import grid_counts
+
+    if not max(float(h) - float(l) for l, h in zip(lo, hi)) > 0:
         return 1
-    return math.prod(max(1, math.ceil(int(resolution) * e / longest - 1e-9)) for e in ext)
+    return math.prod(grid_counts(lo, hi, resolution))

@@ -174,12 +174,6 @@ def run_check(check: str, engine: str, integrator: str) -> CheckResult:
                            f"raised {type(e).__name__}: {e}")
 
 
-def run_all(engine: str, integrators: list[str] | None = None) -> list[CheckResult]:
-    """Every check on every (or the given) integrator of an engine."""
-    cls = load_adapter(engine)
-    return [run_check(c, engine, i) for i in (integrators or cls.offered_integrators()) for c in CHECKS]
-
-
 def run_trap_checks(engine: str) -> list[CheckResult]:
     """The adapter's own trap checks (``Adapter.trap_checks``), each a CheckResult (integrator
     "-"); an engine error is a failed check with the error as its detail."""

@@ -15,7 +15,7 @@ Messages, parent -> worker:
 - ``("exit",)``.
 
 Messages, worker -> parent: ``("ready", pid)`` after init; for each run ``("started", index)`` once
-its truth is ready and its engine starts, then ``("done", index, payload)`` (see :func:`finish`).
+its truth is ready and its engine starts, then ``("done", index, payload)`` (see :func:`pack_payload`).
 
 Every run goes through :func:`freebody.run.execute.execute`, exactly as a serial run does.
 
@@ -89,7 +89,7 @@ def samples_for_saving(out: RunOutput, every: int | None):
                            out.saved_index)
 
 
-def finish(out: RunOutput, task: RunTask) -> dict:
+def pack_payload(out: RunOutput, task: RunTask) -> dict:
     """The payload of a finished run: ``result`` (RunResult, its ``trajectory`` the file written,
     if any), ``saved`` ((trajectory, truth) thinned, if ``ship_saved``) and ``arrays``
     ((trajectory, truth, series), if ``keep_arrays``)."""
@@ -149,8 +149,7 @@ class Runner:
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 out = judge(spec, sim, self.cache, compare_with=compare_with)
         self.cache.offer(spec, out)
-        return finish(out, task)
-
+        return pack_payload(out, task)
 
     def _prepare_truth(self, spec: RunSpec) -> None:
         """Compute (or load) the group's truth before the engine runs, so that the other runs of

@@ -57,7 +57,6 @@ SWEEP_METRICS = {
 }
 
 GRAVITY = (0.0, 0.0, -9.81)  # m/s^2, world: the gravity a body gets when its coin says so
-GRAVITY_MODES = ("mixed", "on", "off")
 MASS_RANGE_KG = (0.1, 10.0)  # log-uniform
 HALF_EXTENT_RANGE_M = (0.02, 0.5)  # log-uniform rms half-extent per principal axis
 MAX_NON_OK_PER_GROUP = 3  # worst-case files kept for diverged/failed runs, per engine/integrator/dt
