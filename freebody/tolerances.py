@@ -2,8 +2,9 @@
 (which method, which time step, which horizon).
 
 A leaf module: it holds constants only and imports nothing from freebody, so every layer (input,
-run, results, report, tools, cli, and the engine adapters: ``from ..tolerances import X``) may
-import it.  Test tolerances live beside the tests that use them; numerical constants of the
+run, results, report, tools, cli, and the engine adapters: ``from freebody.tolerances import X``)
+may import it.  An engine's own bounds (read-back and trap checks) live in its adapter module,
+beside the checks.  Test tolerances live beside the tests that use them; numerical constants of the
 reference algorithms (series cut-offs, iteration limits in ``reference_impl/``) live with them.
 """
 from __future__ import annotations
@@ -136,9 +137,9 @@ SELFCHECK_HIGH_SPIN_FLOAT32_RAD = 1e-2
 
 # --- engine adapters -------------------------------------------------------------------------
 # An engine's own bounds (its read-back checks of the built model, its trap checks) live in its
-# adapter module next to the checks that use them (e.g. freebody/adapters/sapien_adapter.py
-# SAPIEN_TRAP_*; the MJCF read-back of MuJoCo, MJX and Brax in freebody/adapters/mjcf.py), so a
-# third-party adapter adds its own beside its checks.  This module keeps the harness's rules.
+# adapter module next to the checks that use them (e.g. adapters/sapien_adapter.py SAPIEN_TRAP_*;
+# MuJoCo's inertia conversion in adapters/mjcf.py), so a third-party adapter adds its own beside its
+# checks.  This module keeps the harness's rules.  (No harness module uses an engine's bound.)
 
 # --- tools and displays -------------------------------------------------------------------------
 # ``freebody demo``: fit convergence slopes only to errors above float64 round-off and below
@@ -260,7 +261,8 @@ SCHEME_ROUNDOFF_LEVEL_MAX_RAD = 0.1
 # pgs (PhysX, float32) on gazebo_boxes_simple at dt = 1e-3 (0.5 rad/s, 1e4 steps) drifts |w| by
 # -3.1e-8 a step (0.26 ulp) and its orientation 8.2e-4 rad from PhysX's float64 map (0.28 x the bound),
 # 100 x s_M being 1.5e-4; on the other loaded cases 0.02-0.25 x the bound.  SAPIEN tgs's solver bias
-# (SAPIEN_TGS_SPIN_DRIFT_PER_STEP, 5e-7 a step) is beyond it: an engine property, not round-off.
+# (sapien_adapter.SAPIEN_TGS_SPIN_DRIFT_PER_STEP, 5e-7 a step) is beyond it: an engine property, not
+# round-off.
 SCHEME_ROUNDING_DRIFT_PER_STEP = {"float32": 2.0 ** -23, "float64": 0.0}
 # A lone map M "reproduces" a run only when every other (decidable) map's ratio (max distance over
 # its own level) is at least this many times M's: a run within M's level at ratio r while another
