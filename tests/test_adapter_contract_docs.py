@@ -7,7 +7,8 @@ the parameters it lists; a literal default in the table is the actual one; "requ
 abstract (or annotated without a value).  The "EngineEntry" table is checked against
 :class:`~freebody.adapters.base.EngineEntry`'s fields and defaults, the "SteppedAdapter" table
 against :class:`~freebody.adapters.base.SteppedAdapter`.  And no adapter shipped here (the
-built-ins, the worked example, the fake engine) overrides what the docs say not to override.
+built-ins, the worked example, the fake engines) overrides what the docs say not to override,
+or declares a public class attribute the contract does not have (one the harness cannot read).
 """
 from __future__ import annotations
 
@@ -214,23 +215,53 @@ def test_the_stepped_adapter_table_is_what_it_adds():
 def _shipped_adapter_modules() -> list[Path]:
     """The source files of the built-in adapters, the worked example's and the fake engine's."""
     paths = [Path(importlib.util.find_spec(e.module).origin) for e in ENGINES.values()]
-    paths += sorted((ROOT / "examples").rglob("adapter.py")) + sorted((ROOT / "tests" / "fake_engines").glob("*.py"))
+    paths += sorted((ROOT / "examples").rglob("adapter.py")) + sorted((ROOT / "tests" / "fake_engines").rglob("*.py"))
     return paths
+
+
+# Public class attributes of shipped adapters that are not the contract's, each with its reason.
+OWN_CLASS_ATTRIBUTES = {
+    "BatchingAdapter.batch_calls": "the fake engine's record of its simulate_batch calls, read by its tests",
+}
+
+
+def _adapter_classes(tree: ast.Module) -> list[ast.ClassDef]:
+    """The adapter classes of a module: subclasses of Adapter, SteppedAdapter, a built-in adapter
+    class, or another adapter class of the module."""
+    known = {"Adapter", "SteppedAdapter"} | {e.cls for e in ENGINES.values()}
+    classes = [n for n in tree.body if isinstance(n, ast.ClassDef)]
+    adapters: list[ast.ClassDef] = []
+    for _ in classes:
+        for c in classes:
+            bases = {getattr(b, "id", getattr(b, "attr", "")) for b in c.bases}
+            if c not in adapters and bases & (known | {a.name for a in adapters}):
+                adapters.append(c)
+    return adapters
 
 
 @pytest.mark.parametrize("path", _shipped_adapter_modules(), ids=lambda p: p.name)
 def test_no_shipped_adapter_overrides_what_the_harness_provides(path):
     provided = {n for n, row in members_table().items() if row["kind"] == NOT_FOR_OVERRIDING_KIND}
     provided.add("__init__")
-    adapter_bases = {"Adapter", "SteppedAdapter"}
     tree = ast.parse(path.read_text(), filename=str(path))
-    classes = [n for n in tree.body if isinstance(n, ast.ClassDef)]
-    # an adapter class: a subclass of Adapter or SteppedAdapter, or of another adapter class here
-    adapters: set[str] = set()
-    for _ in classes:
-        for c in classes:
-            if any(getattr(b, "id", getattr(b, "attr", "")) in adapter_bases | adapters for b in c.bases):
-                adapters.add(c.name)
-    found = [f"{c.name}.{f.name} (line {f.lineno})" for c in classes if c.name in adapters
+    found = [f"{c.name}.{f.name} (line {f.lineno})" for c in _adapter_classes(tree)
              for f in c.body if isinstance(f, ast.FunctionDef) and f.name in provided]
     assert not found, f"{path.name} overrides what the docs say not to: {found}"
+
+
+@pytest.mark.parametrize("path", _shipped_adapter_modules(), ids=lambda p: p.name)
+def test_no_shipped_adapter_declares_a_class_attribute_the_contract_does_not_have(path):
+    """A public class attribute outside the contract is one the harness cannot read (dead, as
+    ``reference_maps`` was) or reads around the contract: declare it on Adapter, or make it private."""
+    contract = set(declared_members(Adapter)) | set(declared_members(SteppedAdapter))
+    tree = ast.parse(path.read_text(), filename=str(path))
+    found = []
+    for c in _adapter_classes(tree):
+        for node in c.body:
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+            for t in targets:
+                name = getattr(t, "id", "")
+                if name and not name.startswith("_") and name not in contract \
+                        and f"{c.name}.{name}" not in OWN_CLASS_ATTRIBUTES:
+                    found.append(f"{c.name}.{name} (line {node.lineno})")
+    assert not found, f"{path.name}: class attributes outside the adapter contract: {found}"

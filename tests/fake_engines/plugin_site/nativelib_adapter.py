@@ -19,7 +19,6 @@ from freebody.adapters.reference import ReferenceAdapter
 class NativeLibAdapter(ReferenceAdapter):
     name: ClassVar[str] = "nativelib"
     import_name: ClassVar[str] = "nativelib_adapter"
-    reference_maps: ClassVar[bool] = False
     integrators: ClassVar[tuple[str, ...]] = ("semi-implicit-explicit-gyro", "rk4")
 
     @classmethod
