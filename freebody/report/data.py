@@ -1,7 +1,12 @@
 """The numbers a report shows, prepared from a results.json document (no plotting, no markup).
 
-Everything here tolerates any run of any engine in any status: a value that is missing, null or
-non-finite becomes None (shown as "-"), never a NaN in a table or a plot.
+Everything here tolerates any run of any engine in any status: a value that is null or non-finite
+becomes None (shown as "-"), never a NaN in a table or a plot.  A run has every key of the newest
+schema (:func:`freebody.results.document.load_results` migrates what it reads; see
+:data:`freebody.results.document.RUN_DEFAULTS`): a run built by hand passes through
+``load_results`` (or has the keys itself).  Optional keys of the newest schema are read with
+``.get``: the document's ``cases`` and ``convergence``, a case record's fields, a metric, a
+final state's, an engine setting's and a ``vs_engine``'s fields, a convergence entry's.
 """
 from __future__ import annotations
 
@@ -32,25 +37,26 @@ def num(x, spec: str = ".3e") -> str:
 
 
 def label(run: dict) -> str:
-    """engine/integrator[/precision]: one engine run across cases and time steps."""
+    """engine/integrator[/precision]: one engine run across cases and time steps (of a run, or of
+    a convergence entry, whose ``precision`` is optional)."""
     return run_label({**run, "precision": run.get("precision") or "float64"})
 
 
 def metric(run: dict, key: str) -> float | None:
-    return finite_or_none((run.get("metrics") or {}).get(key))
+    return finite_or_none(run["metrics"].get(key))
 
 
 def simulated_s(run: dict) -> float | None:
     """Simulated time of a run, s: steps * dt."""
-    steps, dt = finite_or_none(run.get("steps")), finite_or_none(run.get("dt"))
+    steps, dt = finite_or_none(run["steps"]), finite_or_none(run["dt"])
     return steps * dt if steps and dt else None
 
 
 def wall_per_simulated_s(run: dict) -> float | None:
     """Wall-clock seconds per simulated second (lower is faster); None for a run that did not run."""
-    if run.get("status") in (Status.SKIPPED, Status.FAILED):
+    if run["status"] in (Status.SKIPPED, Status.FAILED):
         return None
-    wall, sim = finite_or_none(run.get("wall_time_s")), simulated_s(run)
+    wall, sim = finite_or_none(run["wall_time_s"]), simulated_s(run)
     return wall / sim if wall is not None and wall > 0 and sim else None
 
 
@@ -58,25 +64,25 @@ def reproduces(run: dict) -> str:
     """The reference map this engine run reproduces ('' for the reference engine / no check), and
     for a loaded run where inside a step its engine evaluated the loads (``load_sampling``: the
     maps it was compared with are that variant)."""
-    m = run.get("matches_reference")
+    m = run["matches_reference"]
     if not isinstance(m, dict):
         return ""
     text = _reproduces(run, m)
-    sampling = run.get("load_sampling")
+    sampling = run["load_sampling"]
     return f"{text} [loads {sampling}]" if sampling and text else text
 
 
 def _reproduces(run: dict, m: dict) -> str:
     if identification.reproduced(m):
-        return f"{reproduced_text(m, run.get('precision'))} ({num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+        return f"{reproduced_text(m, run['precision'])} ({num(m['max_orientation_diff_rad'], '.1e')} rad)"
     from .findings import saturated
 
     if saturated(run):  # every map is as far: no closest map is named
-        return f"none (orientation lost: every map >= {num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+        return f"none (orientation lost: every map >= {num(m['max_orientation_diff_rad'], '.1e')} rad)"
     if identification.verdict(m) == identification.UNDECIDABLE:
         return identification.text(m)
-    if m.get("closest"):
-        return f"none (closest {m['closest']}, {num(m.get('max_orientation_diff_rad'), '.1e')} rad)"
+    if m["closest"]:
+        return f"none (closest {m['closest']}, {num(m['max_orientation_diff_rad'], '.1e')} rad)"
     return "none"
 
 
@@ -119,11 +125,11 @@ def labels(runs: list[dict]) -> list[str]:
 
 def dts(runs: list[dict]) -> list[float]:
     """Distinct time steps, descending (coarsest first)."""
-    return sorted({float(r["dt"]) for r in runs if finite_or_none(r.get("dt"))}, reverse=True)
+    return sorted({float(r["dt"]) for r in runs if finite_or_none(r["dt"])}, reverse=True)
 
 
 def status_counts(runs: list[dict]) -> dict[str, int]:
-    return {s: sum(r.get("status") == s for r in runs) for s in STATUSES}
+    return {s: sum(r["status"] == s for r in runs) for s in STATUSES}
 
 
 # --- the body of a case (for L and E from states) -------------------------------------------------
@@ -172,7 +178,8 @@ def case_record(problem, truth: str) -> dict:
 def case_physics(doc: dict, case: str, problems: dict | None = None) -> CasePhysics | None:
     """The case's body and gravity: from ``problems`` (name -> Problem), else results.json's
     ``"cases"``, else the bundled case of that name; None when none of these knows the case."""
-    rec = (doc.get("cases") or {}).get(case)
+    rec = (doc.get("cases") or {}).get(case)  # optional: an interrupted run's results have none
+    # defaults: null when unknown (written before schema 3), absent when the run was not told
     defaults = tuple(str(k) for k in rec.get("defaults") or ()) if isinstance(rec, dict) else ()
     if problems and case in problems:
         pb = problems[case]
@@ -222,12 +229,12 @@ class Pair:
 
 def _final(run: dict, out_dir: Path | None) -> dict | None:
     """The final state of an ok run: its results.json final_state, else the last trajectory sample."""
-    if run.get("status") != Status.OK:
+    if run["status"] != Status.OK:
         return None
-    fs = run.get("final_state")
+    fs = run["final_state"]
     if isinstance(fs, dict) and fs.get("quaternion_wxyz") is not None:
         return fs
-    if out_dir is not None and run.get("trajectory"):
+    if out_dir is not None and run["trajectory"]:
         from ..results.document import load_trajectory
 
         try:
@@ -254,14 +261,14 @@ def pair_runs(runs: list[dict]) -> list[tuple[dict, dict]]:
     """Pairs of runs of different engines at the same dt and precision.  The reference engine is
     left out when two or more other engines ran (its relation to each engine is the
     'reproduces' column)."""
-    engines = {r["engine"] for r in runs if r.get("status") == Status.OK}
+    engines = {r["engine"] for r in runs if r["status"] == Status.OK}
     skip_ref = len(engines - {REFERENCE_ENGINE}) >= 2
     chosen = [r for r in runs if not (skip_ref and r["engine"] == REFERENCE_ENGINE)]
     out = []
     for i, a in enumerate(chosen):
         for b in chosen[i + 1:]:
             if (a["engine"] != b["engine"] and a["dt"] == b["dt"]
-                    and (a.get("precision") or "float64") == (b.get("precision") or "float64")):
+                    and a["precision"] == b["precision"]):
                 out.append((a, b))
     return out
 
@@ -316,10 +323,10 @@ def error_cells(runs: list[dict]) -> dict[float, dict[tuple[str, str], tuple[str
     the coarsest would hide the others)."""
     out: dict[float, dict] = {}
     for r in runs:
-        dt = finite_or_none(r.get("dt"))
+        dt = finite_or_none(r["dt"])
         if dt is None:
             continue
-        status = r.get("status", Status.FAILED.value)
+        status = r["status"]
         v = metric(r, ORIENTATION_ERROR_MAX) if status == Status.OK else None
         cell = out.setdefault(float(dt), {})
         key = (r["case"], label(r))
@@ -342,7 +349,7 @@ def _settings_table(runs: list[dict]) -> dict[tuple[str, str], tuple[dict, dict,
     """(engine, setting) -> (distinct defaults, distinct values set, changed on some run)."""
     table: dict[tuple[str, str], tuple[dict, dict, list]] = {}
     for r in runs:
-        for key, val in sorted((r.get("engine_settings") or {}).items()):
+        for key, val in sorted(r["engine_settings"].items()):
             defaults, sets, changed = table.setdefault((r["engine"], key), ({}, {}, [False]))
             if isinstance(val, dict) and ("default" in val or "set" in val):
                 d, v = _show(val.get("default")), _show(val.get("set"))
@@ -401,7 +408,7 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, str, str, flo
         for r in rs:
             if best is None or best not in scheme_set(r):
                 name, reproduced = scheme_key(r)
-                undecided = identification.verdict(r.get("matches_reference")) == identification.UNDECIDABLE \
+                undecided = identification.verdict(r["matches_reference"]) == identification.UNDECIDABLE \
                     and not saturated(r)
                 other.append(f"{r['case']} {float(r['dt']):g}: {name if reproduced else f'undecidable (closest {name})' if undecided else none_text(r, name)}")
         shown = best or "none"
@@ -409,7 +416,8 @@ def reproduction_summary(runs: list[dict]) -> list[tuple[str, str, str, str, flo
             sets = [scheme_set(r) for r in rs if best in scheme_set(r)]
             tie = [x for x in sets[0] if all(x in s_ for s_ in sets)]
             shown = f"tie: {' = '.join(tie)}" if len(tie) >= 2 else best
-        dists = [finite_or_none((r.get("matches_reference") or {}).get("max_orientation_diff_rad")) for r in rs]
+        dists = [finite_or_none(r["matches_reference"]["max_orientation_diff_rad"]) for r in rs
+                 if r["matches_reference"]]
         dists = [d for d in dists if d is not None]
         out.append((lab, shown, f"{n if best else 0} of {total}", "; ".join(other) or "-",
                     max(dists) if dists else None))
@@ -425,7 +433,7 @@ def port_comparison(runs: list[dict]) -> list[tuple]:
     the same integrator and dt (the run's ``vs_engine``), in run order."""
     rows = []
     for r in runs:
-        v = r.get("vs_engine")
+        v = r["vs_engine"]
         if not isinstance(v, dict):
             continue
         against = f"{v.get('engine')}/{v.get('integrator')}"
@@ -439,10 +447,10 @@ def port_comparison(runs: list[dict]) -> list[tuple]:
 
 def engine_versions(doc: dict) -> list[tuple[str, str, int]]:
     """(engine, version or 'not installed', number of runs) for every engine of the document."""
-    runs = doc.get("runs") or []
-    versions = dict(doc.get("engines") or {})
+    runs = doc["runs"]
+    versions = dict(doc.get("engines") or {})  # a report page of runs alone (no document) has none
     for r in runs:
-        versions.setdefault(r["engine"], r.get("engine_version"))
+        versions.setdefault(r["engine"], r["engine_version"])
     return [(e, str(v) if v else "not installed", sum(r["engine"] == e for r in runs))
             for e, v in versions.items()]
 
@@ -500,8 +508,8 @@ def expected_order(runs: list[dict], cases: dict | None = None) -> str:
     from .findings import expected_order as expected, state_dependent_loads
 
     per_case = {}
-    for case in dict.fromkeys(r.get("case") for r in runs):
-        e = expected([r for r in runs if r.get("case") == case], state_dependent_loads(cases, str(case)))
+    for case in dict.fromkeys(r["case"] for r in runs):
+        e = expected([r for r in runs if r["case"] == case], state_dependent_loads(cases, str(case)))
         if e is not None:
             per_case[str(case)] = e
     if not per_case:
@@ -549,7 +557,7 @@ def observed_orders(convergence: list[dict], runs: list[dict],
                     worst = rms if worst is None else max(worst, rms)
         row.append(num(worst, ".3f"))
         fitted = {c for c in cases if (lab, c) in fits}
-        row.append(expected_order([r for r in runs if label(r) == lab and r.get("case") in fitted],
+        row.append(expected_order([r for r in runs if label(r) == lab and r["case"] in fitted],
                                   case_records) or "-")
         rows.append(row)
     return ["engine run", *cases, ORDER_FIT_COLUMN, ORDER_EXPECTED_COLUMN], rows
@@ -560,7 +568,7 @@ def trajectory_reader(out_dir: Path | None):
     (t (n,) s, q (n, 4), q_truth (n, 4)) at its saved samples, read from its trajectory file under
     ``out_dir``; None when it has none or it cannot be read."""
     def read(run: dict):
-        if out_dir is None or not run.get("trajectory"):
+        if out_dir is None or not run["trajectory"]:
             return None
         try:
             with np.load(Path(out_dir) / run["trajectory"]) as z:
@@ -663,7 +671,7 @@ class SeriesReader:
         if n == 0:
             raise NoTruth(path)
         t, x, q, v, w = t[:n], x[:n], q[:n], v[:n], w[:n]
-        t_end = finite_or_none(run.get("diverged_at_s"))
+        t_end = finite_or_none(run["diverged_at_s"])
         keep = np.ones(n, bool) if t_end is None else (t <= t_end)
         energy = momentum = None
         with np.errstate(all="ignore"):

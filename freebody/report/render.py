@@ -71,11 +71,10 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     from . import findings as fd
     from .markdown import render_markdown
 
-    out_dir = Path(out_dir)
-    if doc is None:
-        from ..results.document import load_results
+    from ..results.document import load_results
 
-        doc = load_results(out_dir)
+    out_dir = Path(out_dir)
+    doc = load_results(out_dir if doc is None else doc)  # the newest shape (a document in memory too)
     conv = convergence_of(doc)
     runs = doc.get("runs") or []
     physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}

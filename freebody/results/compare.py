@@ -7,8 +7,9 @@ freebody set in the engine).  A failing change (a *regression* in the gate's sen
 
 - a run of the baseline missing from the current results;
 - a run that is ``not comparable``: another experiment under the same name (a shorter run, an
-  edited case file); its metrics are not compared at all (schema-1 baselines carry no experiment:
-  their runs are matched on steps, and the verdict says their content could not be checked);
+  edited case file); its metrics are not compared at all (a run whose experiment is unknown, null
+  in a schema-1 baseline after the migration on load, is matched on steps, and the verdict says its
+  content could not be checked);
 - a run whose status got worse (ok > diverged > failed; a run with a result that is now
   ``skipped`` no longer runs);
 - a ``scheme changed``: the reference map the run reproduces (``matches_reference``) is another
@@ -44,7 +45,7 @@ from . import identification
 from .io import read_regular_file
 from ..errors import InputError, printable
 from ..numbers import finite_or_none
-from .document import load_results, upgrade_names
+from .document import load_results
 from ..report.summary import run_label
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_ABS, ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_ABS,
                            ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_FINAL, ORIENTATION_ERROR_MAX,
@@ -185,7 +186,7 @@ def load_side(source, role: str) -> dict:
 def run_key(run: dict) -> tuple:
     """(case, engine, integrator, precision, dt): dt rounded to tol.COMPARE_DT_SIGNIFICANT_DIGITS (12)
     significant digits."""
-    return (run["case"], run["engine"], run["integrator"], run.get("precision") or "float64",
+    return (run["case"], run["engine"], run["integrator"], run["precision"],
             float(f"{float(run['dt']):.{tol.COMPARE_DT_SIGNIFICANT_DIGITS}g}"))
 
 
@@ -283,20 +284,20 @@ def engine_version_words(doc: dict) -> dict[str, str]:
     engine whose runs failed without a version (e.g. installed but failing to import), else
     'not installed'."""
     failed: dict[str, str] = {}  # engine -> why its runs failed (an engine that fails to import)
-    for r in doc.get("runs") or []:
-        if r.get("status") == Status.FAILED and isinstance(r.get("engine"), str):
-            failed.setdefault(r["engine"], str(r.get("message") or "no reason recorded"))
+    for r in doc["runs"]:
+        if r["status"] == Status.FAILED:
+            failed.setdefault(r["engine"], str(r["message"] or "no reason recorded"))
     v = {e: (str(x) if x else f"failed ({cap(failed[e], VERSION_REASON_CHARS)})" if e in failed
-             else "not installed") for e, x in (doc.get("engines") or {}).items()}
-    for r in doc.get("runs") or []:
-        if r.get("engine_version"):
+             else "not installed") for e, x in doc["engines"].items()}
+    for r in doc["runs"]:
+        if r["engine_version"]:
             v.setdefault(r["engine"], str(r["engine_version"]))
     return v
 
 
 def _versions(base: dict, cur: dict) -> list[tuple[str, str, str]]:
     b, c = engine_version_words(base), engine_version_words(cur)
-    rows = [("freebody", *(str(d.get("freebody_version") or "-") for d in (base, cur)))]
+    rows = [("freebody", *(str(d.get("freebody_version") or "-") for d in (base, cur)))]  # optional: hand-made files
     return rows + [(e, b.get(e, "-"), c.get(e, "-")) for e in dict.fromkeys([*b, *c])]
 
 
@@ -311,10 +312,10 @@ def load_failures(doc: dict) -> dict[tuple, str]:
     engine's adapter failed to load (integrator ``*``, status ``failed``: an engine installed but
     broken), for the note of the baseline runs this leaves missing."""
     out = {}
-    for r in doc.get("runs") or []:
-        if r.get("status") == Status.FAILED and r.get("integrator") == "*":
+    for r in doc["runs"]:
+        if r["status"] == Status.FAILED and r["integrator"] == "*":
             k = run_key(r)
-            out.setdefault((k[0], k[1], k[3], k[4]), str(r.get("message") or ""))
+            out.setdefault((k[0], k[1], k[3], k[4]), str(r["message"] or ""))
     return out
 
 
@@ -324,7 +325,7 @@ def _default_changes(b_runs: dict, c_runs: dict) -> list[tuple[str, str, str, st
     def defaults(runs):
         out: dict = {}
         for r in runs.values():
-            for k, v in (r.get("engine_settings") or {}).items():
+            for k, v in r["engine_settings"].items():
                 if isinstance(v, dict) and "default" in v:
                     out.setdefault((r["engine"], k), v["default"])
         return out
@@ -337,7 +338,7 @@ def scheme_of(run: dict) -> tuple[str, ...] | None:
     """The reference maps a run reproduces (several: indistinguishable on its case), () when it
     reproduces none (closest), None when it was not identified (a reference run, a run not ok) or
     identification could not decide on its case (``verdict`` undecidable: no scheme to compare)."""
-    m = run.get("matches_reference")
+    m = run["matches_reference"]
     v = identification.verdict(m)
     if v is None or v == identification.UNDECIDABLE:
         return None
@@ -348,11 +349,13 @@ def scheme_text(scheme: tuple[str, ...] | None, run: dict | None = None) -> str:
     if scheme is None:
         return "-"
     if not scheme:
-        m = (run or {}).get("matches_reference") or {}
-        d = finite_or_none(m.get("max_orientation_diff_rad"))
-        if m.get("closest") and (d is None or d > tol.CONVERGENCE_ORIENTATION_SATURATED_RAD):
+        if run is None:
+            return "none"
+        m = run["matches_reference"]  # judged (a scheme), so an object
+        d = finite_or_none(m["max_orientation_diff_rad"])
+        if m["closest"] and (d is None or d > tol.CONVERGENCE_ORIENTATION_SATURATED_RAD):
             return "none (orientation lost)"  # every map is about as far: naming the closest misleads
-        return f"none (closest {m['closest']})" if m.get("closest") else "none"
+        return f"none (closest {m['closest']})" if m["closest"] else "none"
     return " = ".join(scheme)
 
 
@@ -372,7 +375,7 @@ def _saturated(m: str, bv: float, cv: float) -> bool:
 
 def _metric_changes(key, lab, b: dict, c: dict, tols: dict[str, Tolerance]) -> list[Change]:
     out = []
-    bm, cm = b.get("metrics") or {}, c.get("metrics") or {}
+    bm, cm = b["metrics"], c["metrics"]  # a metric absent from a run's metrics is undefined
     for m, mt in tols.items():
         bv = finite_or_none(bm.get(m))
         cv = finite_or_none(cm.get(m))
@@ -394,11 +397,12 @@ def _metric_changes(key, lab, b: dict, c: dict, tols: dict[str, Tolerance]) -> l
 
 
 def _experiment_differences(b: dict, c: dict) -> tuple[list[str], bool]:
-    """(the differing fields, whether the content was checked) of two matched runs."""
-    be, ce = b.get("experiment"), c.get("experiment")
-    if isinstance(be, dict) and isinstance(ce, dict):
+    """(the differing fields, whether the content was checked) of two matched runs: a run whose
+    experiment is unknown (None: a schema-1 run) is checked on its steps only."""
+    be, ce = b["experiment"], c["experiment"]
+    if be is not None and ce is not None:
         return differences(be, ce), True
-    bs, cs = b.get("steps"), c.get("steps")
+    bs, cs = b["steps"], c["steps"]
     diff = [f"steps {bs} -> {cs}"] if isinstance(bs, int) and isinstance(cs, int) and bs != cs else []
     return diff, False
 
@@ -437,7 +441,7 @@ def _order_changes(baseline: dict, current: dict, keep) -> list[Change]:
 
 def _kept(doc: dict, keep) -> dict:
     """The document with only the runs (and fitted orders) that ``keep`` keeps."""
-    out = {**doc, "runs": [r for r in doc.get("runs") or [] if keep(r)]}
+    out = {**doc, "runs": [r for r in doc["runs"] if keep(r)]}
     if isinstance(doc.get("convergence"), list):
         out["convergence"] = [e for e in doc["convergence"] if isinstance(e, dict) and keep(e)]
     return out
@@ -447,28 +451,29 @@ def _filter(engines, cases):
     engines, cases = set(engines or ()), set(cases or ())
 
     def keep(run: dict) -> bool:
-        return (not engines or run.get("engine") in engines) and (not cases or run.get("case") in cases)
+        return (not engines or run["engine"] in engines) and (not cases or run["case"] in cases)
     return keep
 
 
 def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | None = None,
             sources: tuple[str, str] = ("baseline", "current"), *, strict: bool = False,
             engines: list[str] | None = None, cases: list[str] | None = None) -> Comparison:
-    """Compare two results documents (already loaded with :func:`load_side`; a document given
-    otherwise has its old integrator names brought up to date here as well: :func:`upgrade_names`).
+    """Compare two results documents (as :func:`load_side` reads them; a document given otherwise,
+    e.g. built in memory, is validated and migrated to the newest shape here as well:
+    :func:`.document.load_results`).
 
     strict : every change beyond tolerance fails (improvements included).
     engines, cases : compare only the runs of these engines / cases (on both sides)."""
     from ..envs.versions import align_engine_names
 
-    baseline, current = upgrade_names(baseline), upgrade_names(current)
+    baseline, current = load_results(baseline, "baseline"), load_results(current, "current")
     tols = tolerances or default_tolerances()
     keep = _filter(engines, cases)
     # the filters apply to the names as run; then an engine's versions are matched across the sides
     baseline, current, renamed = align_engine_names(_kept(baseline, keep), _kept(current, keep))
     keep = _filter(None, None)
-    b_runs = _index([r for r in baseline.get("runs") or [] if keep(r)])
-    c_runs = _index([r for r in current.get("runs") or [] if keep(r)])
+    b_runs = _index([r for r in baseline["runs"] if keep(r)])
+    c_runs = _index([r for r in current["runs"] if keep(r)])
     changes: list[Change] = []
     one_sided: dict[str, None] = {}  # settings freebody set on one side only, per engine (ordered)
     matched = unchecked = 0
@@ -478,21 +483,21 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
         c = c_runs.get(key)
         if c is None:
             why = broken.get((key[0], key[1], key[3], key[4]))
-            changes.append(Change(key, lab, "run", b.get("status"), None, "missing",
+            changes.append(Change(key, lab, "run", b["status"], None, "missing",
                                   note=f"the engine failed in the current results: {why}" if why else ""))
             continue
         matched += 1
         diff, checked = _experiment_differences(b, c)
         unchecked += not checked
-        for note in setting_notes(b.get("experiment"), c.get("experiment")):
+        for note in setting_notes(b["experiment"], c["experiment"]):
             one_sided.setdefault(f"{key[1]}: {note}", None)
         if diff:
             note = "; ".join(diff) + ("" if checked else " (content not checked: schema-1 results)")
-            changes.append(Change(key, lab, "experiment", b.get("steps"), c.get("steps"), "not comparable",
+            changes.append(Change(key, lab, "experiment", b["steps"], c["steps"], "not comparable",
                                   note=note))
             continue
-        bs, cs = b.get("status"), c.get("status")
-        why = str(c.get("message") or "") if cs == Status.FAILED else ""
+        bs, cs = b["status"], c["status"]
+        why = str(c["message"] or "") if cs == Status.FAILED else ""
         if bs != cs:
             changes.append(replace(_status_change(key, lab, bs, cs), note=why))
             continue
@@ -504,12 +509,12 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
     for key, c in c_runs.items():
         if key not in b_runs:
             changes.append(Change(key, f"{key[0]} {run_label({**c, 'precision': key[3]})}", "run", None,
-                                  c.get("status"), "new",
-                                  note=str(c.get("message") or "") if c.get("status") == Status.FAILED else ""))
+                                  c["status"], "new",
+                                  note=str(c["message"] or "") if c["status"] == Status.FAILED else ""))
     changes += _order_changes(baseline, current, keep)
     cmp = Comparison(changes, _versions(baseline, current), matched, len(b_runs), len(c_runs), tols, sources,
                      strict, _default_changes(b_runs, c_runs), unchecked, one_sided=list(one_sided),
-                     schema_versions=(baseline.get("schema_version"), current.get("schema_version")),
+                     schema_versions=(baseline["schema_version"], current["schema_version"]),
                      renamed=renamed)
     return replace(cmp, groups=group_summaries(cmp, b_runs, c_runs))
 
@@ -538,7 +543,7 @@ def group_summaries(cmp: Comparison, b_runs: dict, c_runs: dict) -> list[dict]:
     for (engine, integrator, precision), g in groups.items():
         def side(runs):
             rs = [r for k, r in runs.items() if k[1:4] == (engine, integrator, precision)]
-            versions = Counter(str(r.get("engine_version") or "-") for r in rs)
+            versions = Counter(str(r["engine_version"] or "-") for r in rs)
             schemes = Counter(scheme_text(scheme_of(r), r) for r in rs if scheme_of(r) is not None)
             return (versions.most_common(1)[0][0] if versions else "-",
                     schemes.most_common(1)[0][0] if schemes else None)
