@@ -160,3 +160,21 @@ def test_dzhanibekov_demo(tmp_path, saved_figures):
 def test_cli_demo_unknown_name_is_bad_input(tmp_path, capsys):
     assert main(["demo", "nosuch", "--out", str(tmp_path)]) == 2
     assert "nosuch" in capsys.readouterr().err
+
+
+def test_every_demo_page_is_a_shipped_template():
+    """Each demo's page text is a template file shipped as package data (an installed freebody has
+    it) whose fields are all named (the tests above fill them: a missing one is a KeyError)."""
+    import string
+    import tomllib
+    from fnmatch import fnmatch
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    shipped = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    for name in demo.DEMOS:
+        rel = f"{demo.TEMPLATES}/{name}.md"
+        assert any(fnmatch(rel, pattern) for pattern in shipped.get("freebody.tools", [])), rel
+        fields = {f.split("[")[0].split(".")[0] for _, f, _, _ in string.Formatter().parse(demo._template(name))
+                  if f is not None}
+        assert fields and "" not in fields, name  # named fields only, no positional {}

@@ -15,6 +15,8 @@
 Every slide is 16:9 (:data:`SLIDE_SIZE_IN` at :data:`PNG_DPI`: 1600 x 900 px); where a slide shows the
 exact motion, the truth is drawn on top of the schemes (:data:`TRUTH_STYLE`, highest z-order, first in
 the legend, ``gid="truth"``).  Every number a page prints comes with a sentence saying what it is.
+The pages' text is in ``templates/<demo>.md`` beside this module (str.format templates, package
+data), so a lecturer edits the prose without touching the code that computes its numbers.
 
 Figures are drawn with matplotlib's object API on the Agg canvas (no pyplot state, no display);
 matplotlib is imported inside the functions so ``import freebody.tools.demo`` stays light.  The
@@ -23,6 +25,8 @@ Jupyter lessons in ``examples/`` (docs/teaching.md) teach the same material step
 from __future__ import annotations
 
 import dataclasses
+import functools
+import importlib.resources
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +43,9 @@ from ..reference_impl.rotations import geodesic_angle, matrix_from_quat
 from ..reference_impl.truth import truth_trajectory
 
 DEMOS = ("integrators", "quiz", "dzhanibekov")
+# The pages' text: one str.format template per demo, ``templates/<demo>.md`` beside this module
+# (package data), filled by _page with the numbers of the run.
+TEMPLATES = "templates"
 
 # The lecture's schemes, in the order they are taught, with one colour each on every slide.
 LECTURE_SCHEMES = ("euler-matrix", "euler-matrix-gs", "euler-quat", "lie-euler",
@@ -165,6 +172,18 @@ def _rc():
 def _write_page(path: Path, text: str) -> Path:
     path.write_text(text.strip() + "\n")
     return path
+
+
+@functools.lru_cache(maxsize=None)
+def _template(name: str) -> str:
+    """The text of the page template ``templates/<name>.md`` (package data of freebody.tools)."""
+    return (importlib.resources.files(__package__) / TEMPLATES / f"{name}.md").read_text(encoding="utf-8")
+
+
+def _page(name: str, **fields) -> str:
+    """A demo page: its template (:data:`TEMPLATES`) filled by ``str.format`` with ``fields``, the
+    values the template names (``{dt:g}``, ``{final[rk4][energy_max]:.1e}``, ...)."""
+    return _template(name).format(**fields)
 
 
 def _signed_energy_error(problem: Problem, tr: Trajectory) -> np.ndarray:
@@ -383,99 +402,14 @@ def _integrators_page(dt: float, duration: float, steps: int, convergence_durati
     left_out_text = (f" `euler-matrix`'s error at dt = {', '.join(left_out)} is above the fit range "
                      f"({tol.DEMO_SLOPE_FIT_RANGE_RAD[1]:g} rad) and left out of its fit." if left_out else "")
     m, p = gs_step["measured"], gs_step["predicted"]
-    return f"""
-# Integrators on a tumbling body
-
-The body of the bundled case `{INTEGRATORS_CASE}`: I = diag(1, 2, 3) kg m^2, no gravity, tumbling about
-its major axis; the truth is the closed-form torque-free motion. Every scheme runs {steps} steps of
-dt = {dt:g} s ({duration:g} s). Reproduce the numbers with
-`freebody run {INTEGRATORS_CASE} --engine reference --dt {dt:g} --duration {duration:g}`; the lesson
-`examples/01_integrators.ipynb` derives them step by step.
-
-| scheme | what it does | energy error (E - E0) / KE0 at {duration:g} s | orientation error at {duration:g} s (rad) | observed order |
-| --- | --- | --- | --- | --- |
-{rows}
-
-How to read a row:
-
-{readings}
-
-## Energy error, signed
-
-![energy](integrators_energy.png)
-
-The energy error with its sign, (E(t) - E(0)) / KE(0); the exact motion keeps it at 0 (the black
-dashed line, drawn on top). Explicit Euler *gains* energy at every step, and for a good reason: with w
-frozen over the step the body turns along exp(s [w]) R, and along that path the energy
-E = 1/2 L . R I_b^-1 R^T L has zero slope but a positive curvature (w x L) . I(t)^-1 (w x L), so each
-step adds h^2/2 of it. On the matrix (`euler-matrix`) the gain is largest ({em['energy']:+.2f} after
-{duration:g} s), because each step also moves R off the rotations (the next section) and the body's
-apparent inertia changes with it. `euler-quat` and `lie-euler` nearly coincide ({eq['energy']:+.3f}, drawn
-dashed over each other): without torque L never changes, so updating the momenta first changes nothing,
-and what is left is an explicit Euler step on the rotations (the Lie-Euler method), w taken at the old
-orientation. Momenta first is symplectic Euler for the translation only: it bounds the energy of a
-separable H = T(p) + V(x), but the rotational energy depends on the orientation R as well as on L, and
-a symplectic Euler step would need w at the *new* R (an implicit step). (Before freebody 0.2.0
-`lie-euler` was called `symplectic-euler`, a name that still works.) Gram-Schmidt (`euler-matrix-gs`)
-ends at {gs['energy']:+.1e}: its projection turns R by a further h^2 term that cancels most of explicit
-Euler's on this body (see Convergence), and what is left is a small loss.
-
-`symplectic-splitting` is symplectic: it splits the rotational energy into parts whose motions are
-exact rotations (a sphere's about L, corrections about two principal axes) and composes them
-symmetrically (Dullweber, Leimkuhler & McLachlan 1997). It solves a slightly different rigid body
-exactly, so its energy error oscillates and stays bounded, between {split['energy_min_signed']:+.1e} and
-{split['energy_max_signed']:+.1e} here (lower panel), for as long as you run it; it does not drift.
-`implicit-midpoint` keeps the energy to round-off (at most {mid['energy_max']:.1e} here): the midpoint
-rule conserves every quadratic invariant, and E is quadratic in the body momentum it integrates. RK4
-is more accurate than the splitting at this step ({final['rk4']['energy_max']:.1e} at most) but is not
-symplectic: over very long runs its error grows slowly, while the splitting's stays where it is.
-
-## Orientation error
-
-![orientation](integrators_orientation.png)
-
-All the first-order schemes drift away from the true orientation at a rate proportional to dt (the
-table's last-but-one column gives where each ends); the second-order ones at dt^2, RK4 at dt^4.
-
-## R without Gram-Schmidt
-
-![orthonormality](integrators_orthonormality.png)
-
-Explicit Euler on the matrix, R <- R + h [w] R, multiplies the length of every column by about
-sqrt(1 + h^2 |w|^2) per step: R stops being a rotation (here ||R^T R - 1||_F = {ortho:.2g} after
-{duration:g} s) and the body appears to grow. Re-orthonormalising after each step (Gram-Schmidt) keeps
-it at round-off.
-
-## Convergence
-
-![convergence](integrators_convergence.png)
-
-The maximum orientation error over {convergence_duration:g} s against dt, on a log-log scale. The slope is
-the observed order: about 1 for the Euler family (halve dt, halve the error), about 2 for the
-symplectic splitting and the implicit midpoint (error / 4) and about 4 for RK4 (halve dt, error / 16).
-The horizon is short so that explicit Euler has not saturated (errors above about 1 rad no longer
-shrink with dt, and the fitted slope would be meaningless).{left_out_text} A fitted slope averages the
-local slopes between neighbouring steps, which settle at the order as dt shrinks: `euler-quat`'s are
-{_local_slopes(cq)} from the coarsest pair to the finest.
-
-**Why `euler-matrix-gs` fits {_fmt_slope(cg['slope'])} and not 1.** It is first order, but its first-order
-error happens to be small on this body, so its dt^2 error still shows at the coarse steps. Its local
-slopes fall {_local_slopes(cg)} towards 1. Its error per unit dt at the finest step is {a_gs:.3f} rad/s,
-{cq['error_per_dt'] / a_gs:.0f} times smaller than `euler-quat`'s ({cq['error_per_dt']:.2f} rad/s), so at
-dt = {dt0:g} s about {share:.0%} of its error ({e0:.2g} rad) is the dt^2 part, and a straight line through
-all the points averages slopes between 2 and 1. Why the first-order part is small: Gram-Schmidt is not
-the exponential map. After R + h [w] R it turns R by a further -h^2 k, with
-k_b = (w_y w_z, -w_x w_z, w_x w_y) / 2 in the body frame (from the Cholesky factor of
-R^T R = 1 + h^2 (|w|^2 - w_b w_b^T)), while explicit Euler's own one-step error is the h^2/2 dw/dt it
-misses by freezing w. For I = diag(1, 2, 3), where I1 + I2 = I3 (a flat plate's inertia), Euler's
-equations give dw_b/dt = (-w_y w_z, w_x w_z, -w_x w_y / 3): the x and y parts of the two errors cancel
-exactly and only h^2 |w_x w_y| / 3 is left. Measured over one step of h = {gs_step['h']:g} s from the initial
-state, the orientation error is {m['euler-matrix-gs']:.3f} h^2 rad with Gram-Schmidt against
-{m['lie-euler']:.3f} h^2 for `lie-euler` (predicted {p['euler-matrix-gs']:.3f} and {p['lie-euler']:.3f}). On
-a body without that coincidence, I = diag{tuple(GS_CONTRAST_INERTIA)} with the same initial state, the same
-fit gives {_fmt_slope(contrast['slope'])} and an error per unit dt of {contrast['error_per_dt']:.2f} rad/s: a
-lucky cancellation of this body and of Gram-Schmidt's column order, not a better method.
-"""
+    return _page("integrators", case=INTEGRATORS_CASE, steps=steps, dt=dt, duration=duration, rows=rows,
+                 readings=readings, final=final, em=em, eq=eq, gs=gs, split=split, mid=mid, ortho=ortho,
+                 convergence_duration=convergence_duration, left_out_text=left_out_text, cq=cq,
+                 quat_local_slopes=_local_slopes(cq), gs_slope=_fmt_slope(cg["slope"]),
+                 gs_local_slopes=_local_slopes(cg), a_gs=a_gs, quat_over_gs=cq["error_per_dt"] / a_gs,
+                 dt0=dt0, share=share, e0=e0, gs_step=gs_step, m=m, p=p,
+                 contrast_inertia=tuple(GS_CONTRAST_INERTIA), contrast=contrast,
+                 contrast_slope=_fmt_slope(contrast["slope"]))
 
 
 def _nanlast(a: np.ndarray) -> float:
@@ -671,66 +605,10 @@ def _quiz_page(cf: dict, h: float, table: str, readings: str) -> str:
     """The Markdown of ``quiz.md``: ``cf`` from quiz_closed_form, ``table`` the table body,
     ``readings`` a sentence per row (_quiz_readings)."""
     F, tau, g, m = cf["F"], cf["tau"], cf["g"], cf["m"]
-    return f"""
-# The push quiz, worked out
-
-A sphere of m = {m:g} kg, radius 1 m (I = 2/5 m r^2 = 0.4 kg m^2), at rest at the origin under gravity
-g = {_vec(g)} m/s^2, is pushed for one step of h = {h:g} s by F = 4 N at 30 deg, F = {_vec(F)} N, at the world
-point r = (-1, 0, 0) m. The torque about the COM is tau = r x F = {_vec(tau)} N m. Where is it after two
-steps (t2 = 2h)? Bundled as the case `quiz` (`freebody run quiz`).
-
-## Explicit Euler in closed form
-
-Explicit Euler on (x, R, P, L) updates every variable with the derivative at the *start* of the step:
-
-- step 1 (t0 -> t1, push on): x1 = x0 + h P0/m = 0, R1 = R0 + h [w0] R0 = 1, P1 = h (F + m g), L1 = h tau;
-- step 2 (t1 -> t2, push off): x2 = x1 + h P1/m, R2 = R1 + h [w1] R1 with w1 = I^-1 L1.
-
-So **x2 = h^2 (F/m + g)** = {_vec(cf['x2'])} m, **R2 = 1 + h [w1]** with **w1 = (0, 0, -5h)** =
-{_vec(cf['w1'])} rad/s (-5 = tau_z / I = -2 / 0.4), **P2 = hF + 2hmg** = {_vec(cf['P2'])} kg m/s (gravity acts
-on both steps, the push on one), **L2 = (0, 0, -2h)** = {_vec(cf['L2'])} kg m^2/s (the torque on step 1 only).
-R2 is not a rotation: its columns are longer than 1, and det R2 = 1 + h^2 |w1|^2 = 1 + 25 h^4 =
-{np.linalg.det(cf['R2']):.6g}.
-
-## Every scheme at t2
-
-![quiz](quiz_t2.png)
-
-| scheme | x2 (m) | angle about z (deg) | v2 (m/s) | w2 (rad/s) |
-| --- | --- | --- | --- | --- |
-{table}
-
-The bars of the figure are coloured by the map each answer shows: x2 = 1, 2 or 1.5 h^2 F_x/m is explicit
-Euler, semi-implicit Euler or a force integrated exactly over the step (as RK4 does); any other value
-is "another map". Row by row, with x in units of h^2 F_x/m = {h * h * F[0] / m:.4g} m, z in units of h^2 g_z = {h * h * g[2]:.4g} m
-and the angle in units of h^2 rad:
-
-{readings}
-
-## Why they differ
-
-- **Explicit Euler** (freebody's `euler-matrix`, equal to the closed form to round-off) moves with the
-  *old* velocity: the push changes P and L during step 1 but x and R only from step 2 on. It lags:
-  x2 is h^2 F/m along x, and the body has turned by atan(5 h^2) only.
-- **Semi-implicit Euler** (freebody's `semi-implicit-explicit-gyro` and
-  `semi-implicit-implicit-gyro`), the map of MuJoCo `Euler`/`implicit*`, PyBullet and DART,
-  updates the velocities first and moves with the *new* ones: the push already moves and turns the body
-  in step 1. It leads: x2 = h^2 (2F/m + 3g), angle -10 h^2.
-- **RK4** (freebody's `rk4`, MuJoCo `RK4`) integrates a force held constant over a step exactly:
-  x2 = h^2 (3F/(2m) + 2g), angle -7.5 h^2, the same as the truth.
-- The small x and y components of the exact w2: the push acts at a point fixed in the *world*, and
-  gravity moves the COM during step 1, so the arm r - x(t) and the torque tilt a little. freebody's
-  `rk4` evaluates the arm at each stage and follows the truth; MuJoCo's `RK4` holds the wrench of
-  the step's start.
-
-The exact answer lies halfway between the two first-order schemes (1.5 between 1 and 2 in x, 2 between 1
-and 3 in z, -7.5 between -5 and -10 h^2 in the angle): under a constant acceleration a, explicit Euler
-lags by h a t / 2 and semi-implicit Euler leads by as much. In the quiz the push lasts one step whatever
-h is, so the answers keep these ratios at every h (`freebody run quiz --dt 0.01` shows the same
-1 : 1.5 : 2); the same push resolved by more steps brings the gap down like h (the lesson
-`examples/02_quiz.ipynb` shows it). The engines' agreement with each other says which scheme they
-implement, not that they are exact.
-"""
+    return _page("quiz", m=m, h=h, g_vec=_vec(g), F_vec=_vec(F), tau_vec=_vec(tau), x2_vec=_vec(cf["x2"]),
+                 w1_vec=_vec(cf["w1"]), P2_vec=_vec(cf["P2"]), L2_vec=_vec(cf["L2"]),
+                 det_R2=np.linalg.det(cf["R2"]), table=table, unit_x=h * h * F[0] / m, unit_z=h * h * g[2],
+                 readings=readings)
 
 
 # --- dzhanibekov --------------------------------------------------------------------------------
@@ -902,59 +780,9 @@ def _dzhanibekov_page(dt: float, duration: float, flips: list[float], s_truth: f
     """The Markdown of ``dzhanibekov.md``: ``finals`` the table body, ``readings`` a sentence per
     row, ``missing`` the list of runs not drawn, ``frames`` the GIF's."""
     gif_w, gif_h = (round(v * GIF_DPI) for v in GIF_SIZE_IN)
-    return f"""
-# The Dzhanibekov effect in every engine
-
-The bundled case `dzhanibekov`: I = diag(1, 2, 3) kg m^2, spinning at 5 rad/s about the intermediate
-axis (body y) with a 0.01 rad/s nudge about x; no gravity, no torque. Rotation about the intermediate
-axis is unstable: the nudge grows until the body flips over, holds, and flips back, while L stays
-fixed in the world. The exact motion flips {len(flips)} times in {duration:g} s, at
-t = {_times(flips)} s (the times at which the body-frame w_y changes sign). Every run takes steps of
-dt = {dt:g} s for {duration:g} s. The lesson `examples/03_dzhanibekov.ipynb` follows the flip time
-against dt for every reference integrator.
-
-![flip](dzhanibekov_flip.png)
-
-- **Top**: the angular velocity about the body's y axis: it reverses at each flip. The truth is the
-  black dashed line on top; a run that follows it shows through the gaps.
-- **Middle**: the world-frame x component, zero at the start: it bursts during each flip, because
-  w = I(t)^-1 L changes as the body turns even though L does not.
-- **Bottom**: the energy error with its sign, (E - E0) / E0, on a scale that is logarithmic on both
-  sides of a linear band of +-1e-10 (round-off) around 0: above the band a run has gained energy,
-  below it lost some.
-
-| engine/integrator | energy error, extreme (E - E0) / E0 | orientation error max (rad) | separatrix distance s at the end | flips at (s) |
-| --- | --- | --- | --- | --- |
-{finals}
-
-Row by row:
-
-{readings}
-
-Why some runs flip on time and others do not: the time between flips is set by how close the motion
-is to the separatrix, the motion that would creep towards the intermediate axis forever. Its distance
-is s = 2 E I2 / |L|^2 - 1 with I2 = 2 kg m^2: 0 on the separatrix; positive, the body's axis
-circulates about the minor axis; negative, about the major one. The 0.01 rad/s nudge puts the truth at
-s = {s_truth:+.1e}, so it holds each orientation for {_hold(flips)}. The time between flips grows only
-like log(1 / |s|): a run flips on time while its s stays tiny, whatever its energy error. Explicit
-Euler keeps L exactly but gains energy at every step, so its s grows far from 0, the holding phase
-vanishes and the body tumbles, flipping again and again; a map that changes E and |L|^2 in proportion
-(freebody's semi-implicit maps nearly do: lesson 03 measures it) keeps s small and flips on time
-despite its energy error. Engines that implement the same map draw on top of one another (dashed and dotted
-lines over solid).
-
-Not drawn:
-{missing}
-
-## The tumbling box
-
-![tumbling box](dzhanibekov.gif)
-
-The exact motion in {frames} frames at {GIF_FPS} frames per second ({gif_w} x {gif_h} px): the box has the case's
-inertia (edges in proportion sqrt(2) : 1 : 0.1), the black arrow is its intermediate (y) axis, the grey
-arrow the angular momentum L, fixed in the world; on the right, w_y in the body frame with the frame's
-time marked.
-"""
+    return _page("dzhanibekov", n_flips=len(flips), flip_times=_times(flips), hold=_hold(flips), dt=dt,
+                 duration=duration, finals=finals, readings=readings, s_truth=s_truth, missing=missing,
+                 frames=frames, fps=GIF_FPS, gif_w=gif_w, gif_h=gif_h)
 
 
 def _flip_times(t: np.ndarray, wy: np.ndarray) -> list[float]:
