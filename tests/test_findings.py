@@ -54,7 +54,8 @@ def run(engine: str, integrator: str, case: str = "c", dt: float = 0.01, error: 
          "metrics": {"orientation_error_max_rad": error}, "trajectory": None, "diverged_at_s": None,
          "final_state": {"quaternion_wxyz": q_about_z(angle), "angular_velocity": [0.0, 0.0, 1.0],
                          "linear_velocity": [0.0, 0.0, 0.0], "position": [0.0, 0.0, 0.0], "t": 1.0},
-         "matches_reference": None if engine == "reference" else match(reproduces)}
+         "matches_reference": None if engine == "reference" else match(reproduces), "vs_engine": None,
+         "load_sampling": None}
     r.update(extra)
     return with_judgement(r)
 

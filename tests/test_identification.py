@@ -18,6 +18,8 @@ from freebody.reference_impl.conventions import Trajectory
 from freebody.report import data as rd
 from freebody.report.markdown import ORTHONORMALITY_COLUMN, render_markdown, run_table
 from freebody.report.summary import summary_table
+from freebody.results.document import load_results
+from freebody.results.judgement import with_judgement
 from freebody.run import execute
 from freebody.run.judge import (SCHEME_CANDIDATES, TruthCache, identify, perturbed_start, roundoff_level,
                                 roundoff_spread, scheme_candidates)
@@ -119,8 +121,8 @@ def test_a_spin_of_a_sphere_is_a_tie_of_the_exact_rotation_maps():
         assert set(m["indistinguishable"]) == EXACT_ROTATION_MAPS, m["ratios"]
         assert m["integrator"] == "semi-implicit-explicit-gyro"  # the first of the tie
         assert "rk4" not in m["indistinguishable"] and "euler-quat" not in m["indistinguishable"]
-        run = {"matches_reference": m, "engine": "e", "integrator": "Euler", "case": "spinning_sphere",
-               "dt": dt, "status": "ok", "metrics": {}}
+        run = with_judgement({"matches_reference": m, "engine": "e", "integrator": "Euler",
+                              "case": "spinning_sphere", "dt": dt, "status": "ok", "metrics": {}})
         text = ("tie: semi-implicit-explicit-gyro = semi-implicit-implicit-gyro = rkmk4-body = rk4-body-exp = "
                 "implicit-gyro-split-torque = explicit-gyro-rescaled-momentum = quat-rate-rk5 = "
                 "explicit-gyro-rescaled-torque-last = explicit-gyro-regularised-exp = lie-euler = "
@@ -311,7 +313,7 @@ def test_the_run_table_has_an_orthonormality_column_where_a_run_has_it():
     header, rows = run_table([quat, matrix])
     col = header.index(ORTHONORMALITY_COLUMN)
     assert header[-1] == "reproduces" and [row[col] for row in rows] == ["-", "2.500e-01"]
-    doc = {"runs": [quat, matrix], "schema_version": 2}
+    doc = load_results({"runs": [quat, matrix], "schema_version": 2})
     md = render_markdown(doc, [], {"c": None})
     assert "orthonormality max (\\|\\|R^T R - 1\\|\\|_F)" in md and "2.500e-01" in md
 
@@ -538,7 +540,6 @@ def test_a_run_whose_usual_map_is_undecidable_here_is_no_scheme_switch():
     """high_spin_dt_10ms: the engines' explicit map is undecidable there (its perturbed copies blow
     up), so the tie holds other maps only; that is no switch of scheme."""
     from freebody.report.findings import switch_findings
-    from freebody.results.judgement import with_judgement
 
     def run(case, tie, undecidable=()):
         m = {"verdict": "reproduces" if len(tie) == 1 else "indistinguishable", "integrator": tie[0],

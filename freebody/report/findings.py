@@ -117,26 +117,26 @@ class Finding:
 
 
 def _finding(kind: str, run: dict, text: str, **kw) -> Finding:
-    dt = finite_or_none(run.get("dt"))
-    return Finding(KINDS[kind][0], kind, str(run.get("case", "")), dt, label(run), str(run.get("engine", "")),
+    return Finding(KINDS[kind][0], kind, str(run["case"]), finite_or_none(run["dt"]), label(run), str(run["engine"]),
                    text, **kw)
 
 
 def label(run: dict) -> str:
-    """engine/integrator[/precision] (float64 omitted): one engine run across cases and dts."""
+    """engine/integrator[/precision] (float64 omitted): one engine run across cases and dts (of a
+    run, or of a convergence entry, whose ``precision`` is optional)."""
     return run_label({**run, "precision": run.get("precision") or "float64"})
 
 
 def _precision(run: dict) -> str:
-    return run.get("precision") or "float64"
+    return run["precision"]
 
 
 def _ok(run: dict) -> bool:
-    return run.get("status") == Status.OK
+    return run["status"] == Status.OK
 
 
 def _metric(run: dict, key: str) -> float | None:
-    return finite_or_none((run.get("metrics") or {}).get(key))
+    return finite_or_none(run["metrics"].get(key))  # a metric is optional
 
 
 def _e(x: float | None) -> str:
@@ -313,7 +313,7 @@ def final_angle(a: dict, b: dict) -> float | None:
 
     qs = []
     for r in (a, b):
-        fs = r.get("final_state")
+        fs = r["final_state"]  # None for a run that is not ok
         try:
             q = np.asarray((fs or {})["quaternion_wxyz"], dtype=float)
         except (KeyError, TypeError, ValueError):
@@ -349,9 +349,9 @@ def pair_relation(a: dict, b: dict) -> str:
     'differs by scheme (A vs B)' or '' (either not judged; a reference run is its own map)."""
     names, sets = [], []
     for r in (a, b):
-        if r.get("engine") == REFERENCE_ENGINE:
-            names.append((str(r.get("integrator")), True))
-            sets.append((str(r.get("integrator")),))
+        if r["engine"] == REFERENCE_ENGINE:
+            names.append((str(r["integrator"]), True))
+            sets.append((str(r["integrator"]),))
         else:
             key = scheme_key(r)
             if key is None:
@@ -408,26 +408,26 @@ def status_findings(runs: list[dict]) -> list[Finding]:
     out = []
     missing: dict[str, list[dict]] = {}
     for r in runs:
-        status, msg = r.get("status"), (r.get("message") or "").strip()
+        status, msg = r["status"], (r["message"] or "").strip()
         if status == Status.FAILED:
             out.append(_finding("failed", r, f"failed: {msg or '(no message)'}", source="status"))
         elif status == Status.DIVERGED:
-            t = finite_or_none(r.get("diverged_at_s"))
+            t = finite_or_none(r["diverged_at_s"])
             size = _metric(r, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE)
-            kind = "reference-diverged" if r.get("engine") == REFERENCE_ENGINE else "diverged"
+            kind = "reference-diverged" if r["engine"] == REFERENCE_ENGINE else "diverged"
             why = msg.split(": ", 1)[1] if msg.startswith("diverged at") and ": " in msg else msg
             out.append(_finding(kind, r, f"diverged{'' if t is None else f' at t = {t:.4g} s'}"
                                          f"{f': {why}' if why else ''}"
                                          f"{'' if size is None else f' (orientation error before: {_e(size)} rad)'}",
                                 size_rad=size, t_s=t, source="status, diverged_at_s"))
         elif status == Status.SKIPPED:
-            if r.get("engine_version"):
+            if r["engine_version"]:
                 out.append(_finding("unsupported-version", r, f"skipped: {msg or 'unsupported version'}",
                                     source="status, engine_version"))
             else:
-                missing.setdefault(str(r.get("engine")), []).append(r)
+                missing.setdefault(str(r["engine"]), []).append(r)
     for engine, rs in missing.items():
-        msg = (rs[0].get("message") or "").strip()
+        msg = (rs[0]["message"] or "").strip()
         out.append(Finding(KINDS["not-installed"][0], "not-installed", "", None, engine, engine,
                            f"{len(rs)} runs skipped: {msg or 'not installed'}", source="status"))
     return out
@@ -455,7 +455,7 @@ def cap_text(run: dict) -> str:
     """'the pi/4 rotation cap per step (|w| dt reaches 1.5 rad from t = 0 s)' of a capped run."""
     g = run[STATE_GROWTH]
     cap = float(g["step_rotation_cap_rad"])
-    rot = finite_or_none(g.get("rotation_per_step_max_rad"))
+    rot = finite_or_none(g["rotation_per_step_max_rad"])
     reach = "" if rot is None else f"|w| dt reaches {rot:.3g} rad"
     return (f"the {angle_text(cap)} rotation cap per step ({reach}{', ' if reach else ''}beyond "
             f"{cap:.3g} rad from t = {float(g['rotation_cap_t_s']):.4g} s; its conventions: rotation cap)")
@@ -496,8 +496,8 @@ def blow_up_findings(runs: list[dict]) -> list[Finding]:
         if not blew_up(r):
             continue
         g = r[STATE_GROWTH]
-        w, wr = finite_or_none(g.get("omega_max_rad_s")), finite_or_none(g.get("omega_ratio"))
-        ker, t_w = finite_or_none(g.get("kinetic_energy_ratio")), finite_or_none(g.get("omega_max_t_s"))
+        w, wr = finite_or_none(g["omega_max_rad_s"]), finite_or_none(g["omega_ratio"])
+        ker, t_w = finite_or_none(g["kinetic_energy_ratio"]), finite_or_none(g["omega_max_t_s"])
         t0 = float(g["blow_up_t_s"])
         parts = []
         if w is not None:
@@ -510,7 +510,7 @@ def blow_up_findings(runs: list[dict]) -> list[Finding]:
         text = (f"{'gyroscopic ' if gyro else ''}blow-up: {'; '.join(parts)} (beyond "
                 f"{tol.BLOW_UP_OMEGA_FACTOR:g} x |w| or {tol.BLOW_UP_ENERGY_FACTOR:g} x KE from t = {t0:.4g} s)")
         err = _metric(r, ORIENTATION_ERROR_MAX)
-        if r.get("engine") == REFERENCE_ENGINE:
+        if r["engine"] == REFERENCE_ENGINE:
             out.append(_finding("reference-blow-up", r, text + ": the scheme's own instability on this case",
                                 size_rad=err, t_s=t0, source=STATE_GROWTH))
             continue
@@ -532,7 +532,7 @@ def rotation_cap_findings(runs: list[dict]) -> list[Finding]:
     orientation from then on."""
     out = []
     for r in runs:
-        if r.get("engine") == REFERENCE_ENGINE or not capped(r) or blew_up(r):  # a blow-up's finding names it
+        if r["engine"] == REFERENCE_ENGINE or not capped(r) or blew_up(r):  # a blow-up's finding names it
             continue
         g = r[STATE_GROWTH]
         why = _scheme_text(r)
@@ -540,7 +540,7 @@ def rotation_cap_findings(runs: list[dict]) -> list[Finding]:
                 f"kept; its orientation error {_e(_metric(r, ORIENTATION_ERROR_MAX))} rad is the cap's"
                 + (f"; {why}" if why else ""))
         out.append(_finding("rotation-cap", r, text, size_rad=_metric(r, ORIENTATION_ERROR_MAX),
-                            t_s=finite_or_none(g.get("rotation_cap_t_s")), source=STATE_GROWTH))
+                            t_s=finite_or_none(g["rotation_cap_t_s"]), source=STATE_GROWTH))
     return out
 
 
@@ -590,7 +590,7 @@ def state_dependent_loads(cases: dict | None, case: str) -> bool | None:
     """Whether the case's loads depend on the state (a body couple, a force at a point: results.json
     ``cases[case]["state_dependent_loads"]``), None when the document does not say."""
     rec = (cases or {}).get(case)
-    v = rec.get("state_dependent_loads") if isinstance(rec, dict) else None
+    v = rec["state_dependent_loads"] if isinstance(rec, dict) else None
     return v if isinstance(v, bool) else None
 
 
@@ -623,7 +623,7 @@ def expected_order(runs: list[dict], state_dependent: bool | None = None) -> Exp
         return None
     o = common.pop()
     maps = tuple(n for n, order in order_of.items() if order == o)
-    limited = o > 1 and bool(state_dependent) and any(r.get("load_sampling") == PER_STEP for r in ok)
+    limited = o > 1 and bool(state_dependent) and any(r["load_sampling"] == PER_STEP for r in ok)
     return ExpectedOrder(1 if limited else o, o, maps, closest, limited)
 
 
@@ -673,7 +673,7 @@ def no_map_findings(runs: list[dict]) -> list[Finding]:
                                              f"ranks a scheme){cause}", size_rad=d, source="matches_reference"))
             continue
         if identification.verdict(r["matches_reference"]) == identification.UNDECIDABLE:
-            maps = [x for x in (r["matches_reference"].get("undecidable") or []) if isinstance(x, str)]
+            maps = [x for x in r["matches_reference"]["undecidable"] if isinstance(x, str)]
             out.append(_finding("undecidable", r, f"undecidable here: {', '.join(maps) or 'the maps near it'} "
                                                   f"identify nothing on this case (round-off level at "
                                                   f"{tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD:g} rad, or perturbed copies "
@@ -744,7 +744,7 @@ def switch_findings(runs: list[dict]) -> list[Finding]:
             continue
         for r in rs:
             key = scheme_key(r)
-            undecided = r["matches_reference"].get("undecidable") or []  # its usual map may still be it here
+            undecided = r["matches_reference"]["undecidable"]  # its usual map may still be it here
             if key[1] and best not in scheme_set(r) and best not in undecided:
                 cause = f"; cause: {cap_text(r)}" if capped(r) else ""
                 out.append(_finding("scheme-switch", r, f"reproduces {key[0]} here; {n} of its {total} runs "
@@ -764,13 +764,13 @@ def outlier_findings(runs: list[dict], trajectory: TrajectoryOf | None = None) -
             groups.setdefault((r["case"], float(r["dt"]), _precision(r)), []).append(r)
     for (case, dt, precision), rs in groups.items():
         for r in rs:
-            if r.get("engine") == REFERENCE_ENGINE or blew_up(r):  # a blow-up's finding gives its error
+            if r["engine"] == REFERENCE_ENGINE or blew_up(r):  # a blow-up's finding gives its error
                 continue
             order = run_order(r)
-            peers = [p for p in rs if p.get("engine") not in (r.get("engine"), REFERENCE_ENGINE)]
+            peers = [p for p in rs if p["engine"] not in (r["engine"], REFERENCE_ENGINE)]
             whose = "the other engines' runs"
             if not peers:
-                peers, whose = [p for p in rs if p.get("engine") == REFERENCE_ENGINE], "the reference maps' runs"
+                peers, whose = [p for p in rs if p["engine"] == REFERENCE_ENGINE], "the reference maps' runs"
             peers = [p for p in peers if order is None or run_order(p) is None or run_order(p) <= order]
             if not peers:
                 continue
@@ -810,15 +810,15 @@ def vs_engine_findings(runs: list[dict]) -> list[Finding]:
     (of its closest map: the level of its precision), or not compared."""
     out = []
     for r in runs:
-        v = r.get("vs_engine")
+        v = r["vs_engine"]
         if not isinstance(v, dict) or not _ok(r):
             continue
-        other = f"{v.get('engine')}/{v.get('integrator')}"
-        if v.get("message"):
+        other = f"{v['engine']}/{v['integrator']}"
+        if v.get("message"):  # optional: the comparison could not be made
             out.append(_finding("vs-engine-unavailable", r, f"not compared with {other}: {v['message']}",
                                 source="vs_engine", other=other))
             continue
-        d = finite_or_none(v.get("max_orientation_diff_rad"))
+        d = finite_or_none(v["max_orientation_diff_rad"])
         key = scheme_key(r)
         level = judged(r)["scheme_level_rad"] if key else None
         limit = level if level is not None else tol.SCHEME_ROUNDOFF_FLOOR_RAD
@@ -826,7 +826,7 @@ def vs_engine_findings(runs: list[dict]) -> list[Finding]:
             out.append(_finding("vs-engine-unavailable", r, f"its difference from {other} is not finite",
                                 source="vs_engine", other=other))
         elif d > limit:
-            final = finite_or_none(v.get("final_orientation_diff_rad"))
+            final = finite_or_none(v["final_orientation_diff_rad"])
             out.append(_finding("vs-engine", r, f"differs from {other} by up to {_e(d)} rad (final {_e(final)} rad), "
                                                 f"beyond its round-off level ({_e(limit)} rad)",
                                 size_rad=d, source="vs_engine", other=other))

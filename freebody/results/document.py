@@ -319,7 +319,9 @@ def check_results(doc, where: str) -> dict:
 #   "float64"; ``metrics``, ``engine_settings`` null are {}, ``engine_output`` null is []).  What
 #   an old file cannot carry is None, "unknown": ``experiment`` of a schema-1 run (compare then
 #   matches on steps and says that the content could not be checked), ``load_sampling`` and
-#   ``state_growth`` of a run written before schema 4.
+#   ``state_growth`` of a run written before schema 4.  ``judgement`` is never None: a run without
+#   one (written before schema 5, or by hand) gets it from its other fields
+#   (:func:`freebody.results.judgement.run_judgement`, the function the run layer calls).
 # - every ``matches_reference`` that is a dict: ``verdict`` (one of
 #   :data:`freebody.results.identification.VERDICTS`), ``integrator``, ``closest``,
 #   ``max_orientation_diff_rad``, ``indistinguishable`` and ``undecidable`` (lists), ``levels_rad``
@@ -431,6 +433,11 @@ def _complete(doc: dict) -> dict:
             m.setdefault(k, [])
         for k in ("levels_rad", "ratios"):
             m.setdefault(k, {})
+    from .judgement import JUDGEMENT, run_judgement
+
+    for r in _runs(doc):
+        if r[JUDGEMENT] is None:  # a hand-made file's (freebody writes it; _update_to_5 fills older ones')
+            r[JUDGEMENT] = run_judgement(r)
     return doc
 
 

@@ -22,7 +22,6 @@ import numpy as np
 from .. import tolerances as tol
 from ..adapters.base import EngineDiverged, load_adapter
 from ..adapters.capture import cap_line
-from ..numbers import finite_or_none
 from ..reference_impl import integrators as _maps
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.engine_maps import ENGINE_MAPS, map_load_sampling
@@ -32,13 +31,11 @@ from ..reference_impl.integrators import simulate as reference_simulate
 from ..reference_impl.problem import InitialState, Problem
 from ..reference_impl.rotations import geodesic_angle
 from ..reference_impl.truth import truth_chunks, truth_kind, truth_trajectory
-from ..results.document import prefix_end, select_saved
+from ..results.document import select_saved
 from ..results import identification  # the verdicts' names, read by every reader
 from ..results.judgement import run_judgement
 from .experiment import experiment
-from .metrics import (DIVERGENCE_KINDS, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, ROTATION_ORTHONORMALITY_ERROR_MAX,
-                      STAT_ARRAYS, Scales, Series, SeriesStats, divergence_bounds, divergence_decision,
-                      divergence_firsts, series, truth_scales, GrowthStats)
+from .metrics import STAT_ARRAYS, RunMetrics, Scales, Series, truth_scales
 from .records import RunOutput, RunResult, RunSpec, Simulated, Status
 
 # The engines' maps: what an engine integrator plausibly implements (rk4 only for an RK4 of its
@@ -163,13 +160,11 @@ def step_rotation_cap(spec: RunSpec) -> float | None:
 class RunJudge:
     """Judges one run from its samples, delivered whole (:func:`judge_run`: one :meth:`feed`) or in
     consecutive chunks (a long run, :func:`freebody.run.execute.execute`), with the same rules and
-    the same numbers either way: the error series of each chunk scaled by the truth's maxima over
-    the whole run (``scales``, :class:`~freebody.run.metrics.Scales`), running maxima and finals
-    (:class:`~freebody.run.metrics.SeriesStats`), the first sample of each kind of divergence
-    (:func:`~freebody.run.metrics.divergence_decision` decides at the end), the statistics of the
-    samples before each such sample (the ``*_before_divergence`` metrics and the saved samples of a
-    diverged run), scheme identification (:class:`Identification`) and the comparison with a
-    ported engine's original (:class:`VsEngine`), both fed only while no divergence is found.
+    the same numbers either way: the computations on its arrays (:class:`~freebody.run.metrics.RunMetrics`:
+    error series scaled by the truth's maxima over the whole run ``scales``, running maxima,
+    divergence, growth of the state), scheme identification (:class:`Identification`) and the
+    comparison with a ported engine's original (:class:`VsEngine`), both fed only while no
+    divergence is found; then :meth:`outcome` decides the run's status.
 
     every : keep the samples a trajectory file saves (:func:`~freebody.results.document.select_saved`
         with stride ``every``) as the chunks go by (a long run keeps no more); None: keep none
@@ -178,64 +173,27 @@ class RunJudge:
 
     def __init__(self, spec: RunSpec, scales: Scales, identification: "Identification | None" = None,
                  vs_engine: "VsEngine | None" = None, every: int | None = None):
-        self.spec, self.pb, self.scales = spec, spec.problem, scales
-        self.bounds = divergence_bounds(scales)
+        self.spec = spec
+        self.metrics = RunMetrics(spec.problem, scales, spec.dt, step_rotation_cap(spec))
         self.identification, self.vs_engine = identification, vs_engine
-        self.stats = SeriesStats()
-        self.firsts: dict[str, int] = {}  # kind of divergence -> global index of its first sample
-        self.times: dict[int, float] = {}  # global index -> t of the divergence samples
-        self.before: dict[int, SeriesStats] = {}  # divergence index d -> statistics of [0, prefix_end(d))
-        self.engine_diverged: int | None = None  # index where the engine reported its blow-up
-        self.engine_t: float | None = None
-        self.truth_max: Scales | None = None  # the truth's maxima over the samples fed
         self.n = 0
         self.last: Trajectory | None = None
         self.whole_series: Series | None = None  # of a run fed in one piece
         self.every = every
-        self.growth = GrowthStats(spec.dt, step_rotation_cap(spec))
+        self.diverged_index: int | None = None  # decided by outcome()
         self._rows: list = []
 
     def feed(self, tr: Trajectory, truth: Trajectory, diverged_at: float | None = None) -> None:
         """The next samples of the run (global indices n, n + 1, ...) and the truth's at them;
         ``diverged_at``: the engine reported a blow-up at that time (the last piece)."""
-        pb, k0, m = self.pb, self.n, len(tr)
+        k0, m = self.n, len(tr)
         if m == 0:
             return
         truth = truth.head(m)
-        self.truth_max = truth_scales(pb, truth).merged(self.truth_max)
-        s = series(pb, tr, truth, self.scales)
-        ortho = tr.orthonormality_error
-        new: list[int] = []
-        if diverged_at is not None:
-            d = k0 + int(np.searchsorted(tr.t, diverged_at))
-            self.engine_diverged, self.engine_t = d, float(diverged_at)
-            new.append(d)
-        elif self.engine_diverged is None:
-            wanted = [k for k in DIVERGENCE_KINDS if k not in self.firsts]
-            for kind, i in divergence_firsts(pb, tr, self.bounds, wanted).items():
-                self.firsts[kind] = k0 + i
-                self.times[k0 + i] = float(tr.t[i])
-                new.append(k0 + i)
-        for d in new:
-            if d not in self.before:
-                self.before[d] = self.stats.prefix(s, ortho, k0, prefix_end(d, k0 + m))
-        before = {name: self.stats.maxima[name].best_index for name in STAT_ARRAYS}
-        self.stats.update(s, ortho, k0)
-        self.growth.update(pb, tr, k0, self.scales)
+        s, new, best_before = self.metrics.feed(tr, truth, k0, diverged_at)
         if self.every is not None:
-            picks = [np.arange(-(-k0 // self.every) * self.every, k0 + m, self.every), [k0 + m - 1]]
-            picks.append([v.best_index for name, v in self.stats.maxima.items()
-                          if v.best_index is not None and v.best_index != before[name]])
-            for d in new:
-                picks.append(self.before[d].argmax_indices())
-                picks.append([d - 1, d])
-            g = np.unique(np.concatenate([np.asarray(p, dtype=np.int64) for p in picks]))
-            g = g[(g >= k0) & (g < k0 + m)]
-            local = g - k0
-            self._rows.append((g, tr.take(local), truth.take(local),
-                               [getattr(s, a)[local] for a in STAT_ARRAYS[:4]],
-                               (s.angular_momentum_relative, s.energy_relative)))
-        if not self.firsts and self.engine_diverged is None:
+            self._keep_saved(tr, truth, s, k0, new, best_before)
+        if self.metrics.undiverged:
             q = tr.quaternion_wxyz
             if self.identification is not None:
                 self.identification.update(q)
@@ -245,55 +203,52 @@ class RunJudge:
         self.n = k0 + m
         self.last = tr.take(np.array([m - 1]))
 
+    def _keep_saved(self, tr: Trajectory, truth: Trajectory, s: Series, k0: int, new: list[int],
+                    best_before: dict) -> None:
+        """Keep this chunk's samples that the trajectory file may save: the stride's, its last, each
+        new maximum, and the maxima before and the samples around a divergence found in it."""
+        m, stats = len(tr), self.metrics.stats
+        picks = [np.arange(-(-k0 // self.every) * self.every, k0 + m, self.every), [k0 + m - 1]]
+        picks.append([v.best_index for name, v in stats.maxima.items()
+                      if v.best_index is not None and v.best_index != best_before[name]])
+        for d in new:
+            picks.append(self.metrics.before[d].argmax_indices())
+            picks.append([d - 1, d])
+        g = np.unique(np.concatenate([np.asarray(p, dtype=np.int64) for p in picks]))
+        g = g[(g >= k0) & (g < k0 + m)]
+        local = g - k0
+        self._rows.append((g, tr.take(local), truth.take(local),
+                           [getattr(s, a)[local] for a in STAT_ARRAYS[:4]],
+                           (s.angular_momentum_relative, s.energy_relative)))
+
     def engine_stopped(self, t: float) -> None:
         """The engine reported a blow-up at ``t`` after the samples fed, with no sample of its own:
         the divergence is at the next sample, the statistics before it those of every sample fed."""
-        self.engine_diverged, self.engine_t = self.n, float(t)
-        self.before[self.n] = self.stats
-
-    def diverged(self) -> tuple[int, float, str] | None:
-        """(index, t, reason) of the run's divergence found by the harness, or None."""
-        found = divergence_decision(self.firsts, self.bounds)
-        return None if found is None else (found[0], self.times[found[0]], found[1])
+        self.metrics.engine_stopped(self.n, t)
 
     def outcome(self, engine_reason: str = "") -> dict:
         """The judged fields of the run's RunResult (status, message, metrics, final_state,
-        matches_reference, diverged_at_s, vs_engine)."""
+        matches_reference, diverged_at_s, vs_engine, state_growth)."""
+        found = self.metrics.divergence()
         status, message, d, diverged_at = Status.OK, "", None, None
-        if self.engine_diverged is not None:
-            status, d, diverged_at = Status.DIVERGED, self.engine_diverged, self.engine_t
-            message = f"diverged at t = {diverged_at:.6g} s: {engine_reason}"
-        else:
-            found = self.diverged()
-            if found is not None:
-                d, diverged_at, why = found
-                status, message = Status.DIVERGED, f"diverged at t = {diverged_at:.6g} s: {why}"
+        if found is not None:
+            d, diverged_at, why = found
+            status = Status.DIVERGED
+            message = f"diverged at t = {diverged_at:.6g} s: {engine_reason if why is None else why}"
         self.diverged_index = d
-        momentum_rel, energy_rel = self.truth_max.momentum > 0, self.truth_max.ke > 0
-        metrics = self.stats.metrics(momentum_rel, energy_rel)
-        if status == Status.DIVERGED:
-            # metrics past a blow-up are meaningless: keep them up to the divergence only
-            # but for R's orthonormality error: how far it went (its largest finite value, as it
-            # becomes inf/NaN in the end)
-            metrics = {k: (v if k == ROTATION_ORTHONORMALITY_ERROR_MAX else None) for k, v in metrics.items()}
-            if self.stats.has_orthonormality:
-                metrics[ROTATION_ORTHONORMALITY_ERROR_MAX] = self.stats.maxima["orthonormality_error"].best
-            if d >= 1:
-                head = self.before[d].maxima["orientation_error"].max
-                metrics[ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE] = head
+        metrics, growth = self.metrics.result(d)
         ok = status == Status.OK
-        return dict(status=status, message=message, metrics={k: finite_or_none(v) for k, v in metrics.items()},
+        return dict(status=status, message=message, metrics=metrics,
                     final_state=self.last.state(0).as_dict() if ok else None,
                     matches_reference=self.identification.result() if ok and self.identification else None,
                     vs_engine=self.vs_engine.result() if ok and self.vs_engine else None,
-                    diverged_at_s=diverged_at, state_growth=self.growth.result(self.scales))
+                    diverged_at_s=diverged_at, state_growth=growth)
 
     def saved(self) -> tuple[Trajectory, Trajectory, Series, np.ndarray]:
         """(run, truth, series, sample indices) at the samples its trajectory file keeps (after
         :meth:`outcome`; ``every`` given)."""
         d = self.diverged_index
-        maxima = self.stats.argmax_indices() + (self.before[d].argmax_indices() if d is not None else [])
-        idx = select_saved(self.n, self.every, maxima, d)
+        idx = select_saved(self.n, self.every, self.metrics.saved_maxima(d), d)
         g = np.concatenate([r[0] for r in self._rows])
         tr = Trajectory.concatenate([r[1] for r in self._rows])
         truth = Trajectory.concatenate([r[2] for r in self._rows])

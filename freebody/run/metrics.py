@@ -14,7 +14,7 @@ from ..reference_impl.problem import Problem
 from ..reference_impl.rotations import geodesic_angle
 from .. import tolerances as tol
 from ..numbers import finite_or_none
-from ..results.document import finite_argmax
+from ..results.document import finite_argmax, prefix_end
 
 # The keys of a results.json ``metrics`` dict, defined once (they are the schema: every module
 # names a metric through these constants).
@@ -373,4 +373,99 @@ def blow_up_bounds(scales: Scales) -> dict[str, float]:
 def _first(mask: np.ndarray) -> int | None:
     idx = np.flatnonzero(mask)
     return int(idx[0]) if idx.size else None
+
+
+# --- a run's metrics, fed chunk by chunk -----------------------------------------------------------
+
+class RunMetrics:
+    """Everything computed on a run's arrays, fed whole (one :meth:`feed`) or in consecutive chunks
+    with the same numbers either way: the error series of each chunk scaled by the truth's maxima
+    over the whole run (``scales``), their running maxima and finals (:class:`SeriesStats`), the
+    first sample of each kind of divergence (:func:`divergence_firsts`; :meth:`divergence` decides
+    at the end, :func:`divergence_decision`), the statistics of the samples before each such sample
+    (the ``*_before_divergence`` metrics and the saved samples of a diverged run) and the growth of
+    the state (:class:`GrowthStats`).  :class:`freebody.run.judge.RunJudge` drives it.
+
+    dt : the run's step, s.  cap : the engine's rotation cap per step (rad) or None.
+    """
+
+    def __init__(self, problem: Problem, scales: Scales, dt: float, cap: float | None = None):
+        self.pb, self.scales = problem, scales
+        self.bounds = divergence_bounds(scales)
+        self.stats = SeriesStats()
+        self.firsts: dict[str, int] = {}  # kind of divergence -> global index of its first sample
+        self.times: dict[int, float] = {}  # global index -> t of the divergence samples
+        self.before: dict[int, SeriesStats] = {}  # divergence index d -> statistics of [0, prefix_end(d))
+        self.engine_diverged: int | None = None  # index where the engine reported its blow-up
+        self.engine_t: float | None = None
+        self.truth_max: Scales | None = None  # the truth's maxima over the samples fed
+        self.growth = GrowthStats(dt, cap)
+
+    @property
+    def undiverged(self) -> bool:
+        """Whether no divergence has been found (nor reported by the engine) in the samples fed."""
+        return not self.firsts and self.engine_diverged is None
+
+    def feed(self, tr: Trajectory, truth: Trajectory, k0: int,
+             diverged_at: float | None = None) -> tuple[Series, list[int], dict[str, int | None]]:
+        """The run's next samples ``tr`` (global indices k0, k0 + 1, ...) and the truth's at them
+        (as many); ``diverged_at``: the engine reported a blow-up at that time (the last piece).
+        Returns (the chunk's :class:`Series`, the global indices of the divergences first found in
+        it, each array's index of its largest finite value before this chunk)."""
+        pb, m = self.pb, len(tr)
+        self.truth_max = truth_scales(pb, truth).merged(self.truth_max)
+        s = series(pb, tr, truth, self.scales)
+        ortho = tr.orthonormality_error
+        new: list[int] = []
+        if diverged_at is not None:
+            d = k0 + int(np.searchsorted(tr.t, diverged_at))
+            self.engine_diverged, self.engine_t = d, float(diverged_at)
+            new.append(d)
+        elif self.engine_diverged is None:
+            wanted = [k for k in DIVERGENCE_KINDS if k not in self.firsts]
+            for kind, i in divergence_firsts(pb, tr, self.bounds, wanted).items():
+                self.firsts[kind] = k0 + i
+                self.times[k0 + i] = float(tr.t[i])
+                new.append(k0 + i)
+        for d in new:
+            if d not in self.before:
+                self.before[d] = self.stats.prefix(s, ortho, k0, prefix_end(d, k0 + m))
+        best_before = {name: self.stats.maxima[name].best_index for name in STAT_ARRAYS}
+        self.stats.update(s, ortho, k0)
+        self.growth.update(pb, tr, k0, self.scales)
+        return s, new, best_before
+
+    def engine_stopped(self, n: int, t: float) -> None:
+        """The engine reported a blow-up at ``t`` after the ``n`` samples fed, with no sample of its
+        own: the divergence is at sample n, the statistics before it those of every sample fed."""
+        self.engine_diverged, self.engine_t = n, float(t)
+        self.before[n] = self.stats
+
+    def divergence(self) -> tuple[int, float, str | None] | None:
+        """(index, t, reason) of the run's divergence, or None: the engine's report first (reason
+        None: the engine's own), else the harness's decision (:func:`divergence_decision`)."""
+        if self.engine_diverged is not None:
+            return self.engine_diverged, self.engine_t, None
+        found = divergence_decision(self.firsts, self.bounds)
+        return None if found is None else (found[0], self.times[found[0]], found[1])
+
+    def result(self, diverged_index: int | None) -> tuple[dict, dict]:
+        """(results.json ``metrics``, ``state_growth``) of the samples fed; ``diverged_index``: the
+        run diverged there (:meth:`divergence`): its metrics are kept up to it only, but for R's
+        orthonormality error (how far it went: its largest finite value, as it becomes inf/NaN in
+        the end)."""
+        metrics = self.stats.metrics(self.truth_max.momentum > 0, self.truth_max.ke > 0)
+        d = diverged_index
+        if d is not None:  # metrics past a blow-up are meaningless
+            metrics = {k: (v if k == ROTATION_ORTHONORMALITY_ERROR_MAX else None) for k, v in metrics.items()}
+            if self.stats.has_orthonormality:
+                metrics[ROTATION_ORTHONORMALITY_ERROR_MAX] = self.stats.maxima["orthonormality_error"].best
+            if d >= 1:
+                metrics[ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE] = self.before[d].maxima["orientation_error"].max
+        return {k: finite_or_none(v) for k, v in metrics.items()}, self.growth.result(self.scales)
+
+    def saved_maxima(self, diverged_index: int | None) -> list[int]:
+        """The indices of the maxima a trajectory file keeps: over the run, and before its divergence."""
+        d = diverged_index
+        return self.stats.argmax_indices() + (self.before[d].argmax_indices() if d is not None else [])
 
