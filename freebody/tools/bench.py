@@ -49,7 +49,6 @@ table of checks first, then the figures behind them.
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import platform
@@ -63,7 +62,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..results.document import document_header
+from ..results.document import document_header, load_results
 
 # 2: the checks of issue 15 (a-e: "checks", "reference_map_*", "long_run_*", "rss_*",
 #    "suite_pinned_*", "suite_*_bytes"); the suite is the pinned list with its report; every key
@@ -433,7 +432,7 @@ def _run_once(steps: int) -> Child:
         if child.returncode != 0:
             raise RuntimeError(f"freebody run ({steps} steps) exited {child.returncode}: "
                                f"{child.stderr_tail}")
-        runs = json.loads((Path(tmp) / "results.json").read_text())["runs"]
+        runs = load_results(Path(tmp))["runs"]
     if len(runs) != 1 or runs[0]["steps"] != steps or runs[0]["status"] != "ok":
         got = "; ".join(f"{r['status']} {r['steps']} steps {r.get('message') or ''}"[:200] for r in runs)
         raise RuntimeError(f"freebody run ({steps} steps) did not give one ok run of {steps} "
