@@ -197,7 +197,9 @@ def two_versions(tmp_path_factory) -> dict:
             b["matches_reference"] = {"integrator": "rkmk4", "closest": "rkmk4"}
             b["metrics"]["orientation_error_max_rad"] *= 10
         new += [a, b]
-    doc = {**doc, "runs": doc["runs"] + new, "engines": {**doc["engines"], "fake==1": "1", "fake==2": "2"}}
+    from freebody.results.document import load_results  # hand-made runs: the newest shape, as on load
+
+    doc = load_results({**doc, "runs": doc["runs"] + new, "engines": {**doc["engines"], "fake==1": "1", "fake==2": "2"}})
     (out / "two.json").write_text(json.dumps(doc))
     return {"doc": doc, "path": out / "two.json"}
 

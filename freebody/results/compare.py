@@ -136,7 +136,7 @@ class Comparison:
     settings : (engine, setting, baseline default, current default): an engine default that freebody
         overrides and that changed between the two sides (freebody sets it, so it does not change
         the numbers; shown because an upgrade moved it).
-    unchecked : matched runs whose experiment could not be checked (a schema-1 side).
+    unchecked : matched runs whose experiment could not be checked (unknown on a side: schema-1 results).
     one_sided : "engine: setting K only in baseline|current (= V)": an option freebody sets that one
         engine version lacks (not a different experiment; shown beside the versions).
     """

@@ -231,6 +231,7 @@ def load_results(source, role: str = "") -> dict:
 
     role : e.g. "baseline" or "current", named in error messages.  InputError on anything unusable
     (missing file, bad JSON, another schema version: the message says how to migrate, malformed runs).
+    The one reader of results documents: what it returns is in the newest shape (:func:`migrate`).
     """
     prefix = f"{role} " if role else ""
     if isinstance(source, dict):
@@ -276,7 +277,8 @@ def _json_type(value) -> str:
 def check_results(doc, where: str) -> dict:
     """Validate a loaded results document: its schema version, ``engines``, ``incomplete`` and every
     run's identity, status and the types of the fields readers use (:data:`_RUN_FIELD_TYPES`);
-    InputError naming ``where`` and the field."""
+    InputError naming ``where`` and the field.  Returns a copy in the newest shape
+    (:func:`migrate`) with the current names of reference maps (:func:`upgrade_names`)."""
     from ..run.records import STATUSES
 
     if not isinstance(doc, dict) or "schema_version" not in doc:
@@ -456,8 +458,9 @@ def _copied(doc: dict) -> dict:
 
 def migrate(doc: dict) -> dict:
     """A copy of ``doc`` in the newest shape: one step of :data:`_MIGRATIONS` per version it is
-    behind, then the keys every document has (:func:`_complete`).  Its ``schema_version`` is kept
-    (it says what was written); ``doc`` itself is not modified."""
+    behind, then the keys every document has (:func:`_complete`; the guaranteed and the optional
+    keys are listed above :func:`_update_to_2`).  Its ``schema_version`` is kept (it says what was
+    written); ``doc`` itself is not modified."""
     doc = _copied(doc)
     for target in range(int(doc["schema_version"]) + 1, SCHEMA_VERSION + 1):
         doc = _MIGRATIONS[target](doc)
