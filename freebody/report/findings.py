@@ -1,5 +1,9 @@
 """Findings and the verdict page: what in a results document deserves a reader's attention,
-computed from the runs alone (nothing is written by hand per engine).
+computed from the runs alone (nothing is written by hand per engine).  What a finding says of one
+run it reads from the run's stored ``judgement`` (:mod:`freebody.results.judgement`: the map it
+reproduces or comes closest to, a lost orientation, its formal order, a blow-up, the rotation
+cap), judged once when the run was recorded; what this module computes is the comparison of runs
+with each other (scheme groups, pairs, outliers, majorities, disagreements) and the words.
 
 Every engine run (not the reference engine's: its runs *are* the reference maps) that scheme
 identification judged (``matches_reference``, :func:`freebody.run.judge.identify`) belongs, on its
@@ -27,8 +31,10 @@ with each other to round-off; runs of two groups differ by their schemes.  A fin
 
 Each :class:`Finding` carries its severity, one sentence, the size of the disagreement (rad) and,
 where the saved trajectories tell it, the time of its first sample (s), and names the results
-field that raised it.  Pure functions of run dicts (results.json ``runs`` entries); the times come
-from an optional ``trajectory(run)`` callable (the report reads the trajectory files).
+field that raised it.  Pure functions of run dicts (results.json ``runs`` entries in the newest
+shape, as :func:`freebody.results.document.load_results` gives them: every key of a run, its
+``judgement`` included); the times come from an optional ``trajectory(run)`` callable (the report
+reads the trajectory files).
 """
 from __future__ import annotations
 
