@@ -123,7 +123,8 @@ def test_a_hand_made_document_gets_every_key():
     freebody wrote: absent keys are their defaults, a null precision is float64, an unknown
     verdict word is the one its other keys imply."""
     run = {"case": "c", "engine": "e", "integrator": "i", "dt": 0.01, "status": "ok", "precision": None,
-           "metrics": None, "matches_reference": {"verdict": "maybe", "integrator": None, "closest": "rk4"}}
+           "metrics": None, "matches_reference": {"verdict": "maybe", "integrator": None, "closest": "rk4",
+                                                  "ratios": None}}
     doc = load_results({"schema_version": SCHEMA_VERSION, "runs": [run]})
     (r,) = doc["runs"]
     assert r["precision"] == "float64" and r["metrics"] == {} and r["engine_settings"] == {}

@@ -418,29 +418,43 @@ _NULL_MEANS_DEFAULT = ("precision", "metrics", "engine_settings", "engine_output
 def _complete(doc: dict) -> dict:
     """The keys every document of the newest shape has (see above), filled where a file (of any
     version: a hand-made one, a trimmed one) leaves them out."""
-    from .identification import VERDICTS, implied_verdict
-
-    doc.setdefault("engines", {})
+    if doc.get("engines") is None:
+        doc["engines"] = {}
     doc.setdefault("incomplete", False)
     for r in _runs(doc):
-        for k, v in RUN_DEFAULTS.items():
-            if k not in r or (r[k] is None and k in _NULL_MEANS_DEFAULT):
-                r[k] = type(v)() if isinstance(v, (dict, list)) else v
-    for m in _judged(doc):
+        _complete_run(r)
+    return doc
+
+
+def _complete_run(r: dict) -> None:
+    """Fill, in place, what a run of the newest shape has (see above :func:`_update_to_2`)."""
+    from .identification import VERDICTS, implied_verdict
+    from .judgement import JUDGEMENT, run_judgement
+
+    for k, v in RUN_DEFAULTS.items():
+        if k not in r or (r[k] is None and k in _NULL_MEANS_DEFAULT):
+            r[k] = type(v)() if isinstance(v, (dict, list)) else v
+    m = r["matches_reference"]
+    if isinstance(m, dict):
         if m.get("verdict") not in VERDICTS:  # a hand-made file's: read as its other keys imply
             m["verdict"] = implied_verdict(m)
         for k in ("integrator", "closest", "max_orientation_diff_rad"):
             m.setdefault(k, None)
-        for k in ("indistinguishable", "undecidable"):
-            m.setdefault(k, [])
-        for k in ("levels_rad", "ratios"):
-            m.setdefault(k, {})
-    from .judgement import JUDGEMENT, run_judgement
+        for k, kind in (("indistinguishable", list), ("undecidable", list), ("levels_rad", dict), ("ratios", dict)):
+            if not isinstance(m.get(k), kind):  # absent, or null in a hand-made file
+                m[k] = kind()
+    if r[JUDGEMENT] is None:  # a hand-made file's (freebody writes it; _update_to_5 fills older ones')
+        r[JUDGEMENT] = run_judgement(r)
 
-    for r in _runs(doc):
-        if r[JUDGEMENT] is None:  # a hand-made file's (freebody writes it; _update_to_5 fills older ones')
-            r[JUDGEMENT] = run_judgement(r)
-    return doc
+
+def complete_run(run: dict) -> dict:
+    """A copy of a run built by hand (a results.json ``runs`` entry, e.g. in a test) in the newest
+    shape, as :func:`load_results` gives every run: its absent keys filled (:data:`RUN_DEFAULTS`),
+    its ``matches_reference`` completed, its ``judgement`` computed when it has none."""
+    out = {**run, "matches_reference": dict(run["matches_reference"])} \
+        if isinstance(run.get("matches_reference"), dict) else dict(run)
+    _complete_run(out)
+    return out
 
 
 def _copied(doc: dict) -> dict:
@@ -528,6 +542,10 @@ def upgrade_names(doc: dict, aliases: dict[str, str] | None = None) -> dict:
                 if isinstance(m.get(k), dict):
                     m[k] = {name(x): v for x, v in m[k].items()}
             out["matches_reference"] = m
+        if isinstance(e.get("judgement"), dict):  # its map names are those above: the same facts, new names
+            from .judgement import run_judgement
+
+            out["judgement"] = run_judgement(out)
         return out
 
     out = doc
