@@ -100,8 +100,10 @@ def _engine_run(reference_run: dict) -> dict:
     n = reference_run["steps"]
     m = identify(pb, simulate(pb, NEW, dt, n), RunSpec(pb, "numpy-euler", "symplectic", dt, n), TruthCache())
     assert m["integrator"] == NEW and m["indistinguishable"] == [NEW], m
-    return {**copy.deepcopy(reference_run), "engine": "numpy-euler", "integrator": "symplectic",
-            "engine_version": "1.0", "matches_reference": m}
+    from freebody.results.judgement import with_judgement
+
+    return with_judgement({**copy.deepcopy(reference_run), "engine": "numpy-euler", "integrator": "symplectic",
+                           "engine_version": "1.0", "matches_reference": m})
 
 
 @pytest.fixture(scope="module")

@@ -198,3 +198,15 @@ def test_findings_present_the_stored_facts_and_judge_nothing_again(doc, monkeypa
     assert [f.kind for f in fd.blow_up_findings([claimed])] == ["blow-up"]
     with pytest.raises(KeyError):
         fd.find([{k: v for k, v in ok.items() if k != jd.JUDGEMENT}])
+
+
+def test_a_renamed_map_is_renamed_in_a_stored_judgement_too():
+    """A schema-5 file judged under a map's old name reads with the current name in its judgement
+    (the facts of the renamed map: its order, found under the current name)."""
+    run = jd.with_judgement(hand_made()[0])
+    old = {**run, "matches_reference": {**run["matches_reference"], "integrator": "symplectic-euler",
+                                        "closest": "symplectic-euler", "indistinguishable": ["symplectic-euler"]}}
+    old = {**old, jd.JUDGEMENT: {**run[jd.JUDGEMENT], "scheme": "symplectic-euler", "schemes": ["symplectic-euler"],
+                                 "order": None, "order_maps": [["symplectic-euler", None]]}}
+    j = load_results({"schema_version": SCHEMA_VERSION, "runs": [old]})["runs"][0][jd.JUDGEMENT]
+    assert j["scheme"] == "lie-euler" and j["order"] == 1 and j["order_maps"] == [["lie-euler", 1]]
