@@ -29,7 +29,7 @@ def add_parser(sub) -> None:
 def run(args) -> int:
     from pathlib import Path
 
-    from ..tools.demo import _stderr, run_demo
+    from ..tools.demo import log_to_stderr, run_demo
     from ..errors import InputError
     from ..run import select_engines
 
@@ -38,7 +38,7 @@ def run(args) -> int:
         if n not in DEMO_NAMES:
             raise InputError(f"demo: unknown demo {n!r}; known: {', '.join(DEMO_NAMES)}")
     engines = select_engines(args.engine) if args.engine else None
-    log = None if args.quiet else _stderr
+    log = None if args.quiet else log_to_stderr
     out_dir = Path(args.out)
     for n in dict.fromkeys(names):
         if log:

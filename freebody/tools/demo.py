@@ -853,6 +853,7 @@ def _draw_box_gif(problem: Problem, truth: Trajectory, path: Path, frames: int) 
             writer.grab_frame()
 
 
-def _stderr(msg: str) -> None:
+def log_to_stderr(msg: str) -> None:
+    """One progress line on stderr (``freebody demo``'s log unless --quiet)."""
     sys.stderr.write(msg + "\n")
     sys.stderr.flush()
