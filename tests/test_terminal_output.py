@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from freebody.cli import main
+from freebody.results.document import complete_run
 from freebody.input.casefile import bundled_case_paths
 from freebody.report.summary import (MATRIX_TITLE, NOT_OK_LINES_MAX, not_ok_lines, summary_matrix,
                                      summary_width, terminal_summary, where_to_look)
@@ -55,11 +56,12 @@ class Tty(io.StringIO):
 
 def _run(case: str, engine: str, integrator: str, dt: float = 0.01, status: str = "ok", err=1e-3,
          message: str = "", precision: str = "float64", diverged_at: float | None = None) -> dict:
-    """A results.json ``runs`` entry with what the summary reads."""
-    return {"case": case, "engine": engine, "integrator": integrator, "dt": dt, "status": status,
+    """A results.json ``runs`` entry with what the summary reads, in the newest shape (its
+    judgement included, as every run the summary is given has one)."""
+    return complete_run({"case": case, "engine": engine, "integrator": integrator, "dt": dt, "status": status,
             "precision": precision, "message": message, "diverged_at_s": diverged_at,
             "metrics": {"orientation_error_max_rad": err} if status == "ok" else {},
-            "matches_reference": None, "vs_engine": None}
+            "matches_reference": None, "vs_engine": None})
 
 
 # The default suite as measured (freebody run, every default engine installed: 1161 runs): the
@@ -250,16 +252,21 @@ def test_matrix_cells_worst_error_markers_and_words():
                      "F: a run failed; d: a run diverged; FAIL/div/skip: no run ok"]
 
 
+def _grown(run: dict, growth: dict) -> dict:
+    """``run`` with this ``state_growth``, judged again (its judgement is what the summary reads)."""
+    return complete_run({**{k: v for k, v in run.items() if k != "judgement"}, "state_growth": growth})
+
+
 def test_a_blow_up_and_a_rotation_cap_are_marked_apart_from_a_saturated_phase_error():
     """Three cells at ~3.1 rad: a phase error (no marker), a blow-up (b), a blow-up past the engine's
     rotation cap (b and c), each marker with its legend; a diverged run's growth is not marked."""
     grown = {"blow_up_t_s": 2.51, "omega_ratio": 797.0, "kinetic_energy_ratio": 6.5e3}
     runs = [_run("disk", "e1", "implicit", err=3.13),
-            {**_run("disk", "e2", "euler", err=3.11), "state_growth": grown},
-            {**_run("disk", "e3", "multibody", err=3.12),
-             "state_growth": {**grown, "step_rotation_cap_rad": 0.785, "rotation_cap_t_s": 1.39}},
-            {**_run("disk", "e4", "x", status="diverged"), "state_growth": grown},
-            {**_run("disk", "e4", "y", err=3.1), "state_growth": {"blow_up_t_s": None}}]
+            _grown(_run("disk", "e2", "euler", err=3.11), grown),
+            _grown(_run("disk", "e3", "multibody", err=3.12),
+                   {**grown, "step_rotation_cap_rad": 0.785, "rotation_cap_t_s": 1.39}),
+            _grown(_run("disk", "e4", "x", status="diverged"), grown),
+            _grown(_run("disk", "e4", "y", err=3.1), {"blow_up_t_s": None})]
     lines = summary_matrix(runs)
     row = next(ln for ln in lines if ln.startswith("disk"))
     assert row.split() == ["disk", "3.1e+00", "3.1e+00b", "3.1e+00bc", "3.1e+00d"], row

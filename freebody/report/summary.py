@@ -13,7 +13,7 @@ from ..run.progress import terminal_width
 from .. import tolerances as tol
 from ..numbers import finite_or_none
 from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL, ORIENTATION_ERROR_MAX,
-                           POSITION_ERROR_MAX, STATE_GROWTH)
+                           POSITION_ERROR_MAX)
 from ..run.records import STATUSES, Status
 from ..results import identification
 
@@ -96,10 +96,11 @@ STATUS_ORDER = (Status.FAILED, Status.DIVERGED, Status.SKIPPED)  # worst first
 MARKERS = {Status.FAILED: "F", Status.DIVERGED: "d", Status.SKIPPED: "s"}  # a cell with some runs not ok
 NONE_OK = {Status.FAILED: "FAIL", Status.DIVERGED: "div", Status.SKIPPED: "skip"}  # a cell with no run ok
 MARKER_TEXT = {Status.FAILED: "a run failed", Status.DIVERGED: "a run diverged", Status.SKIPPED: "a run skipped"}
-# Markers of ok runs whose state says more than their orientation error (results.json state_growth):
-# a blow-up (its orientation error is the blow-up's, not a phase error) and a rotation per step
-# beyond the engine's cap; after the status marker.
-GROWTH_MARKERS = {"blow_up_t_s": "b", "rotation_cap_t_s": "c"}
+# Markers of ok runs whose state says more than their orientation error (the run's stored
+# judgement, results.json runs[].judgement, judged from state_growth): a blow-up (its orientation
+# error is the blow-up's, not a phase error) and a rotation per step beyond the engine's cap;
+# after the status marker.
+GROWTH_MARKERS = {"blew_up": "b", "capped": "c"}
 GROWTH_MARKER_TEXT = {
     "b": f"blow-up (|w| > {tol.BLOW_UP_OMEGA_FACTOR:g}x or KE > {tol.BLOW_UP_ENERGY_FACTOR:g}x the truth's)",
     "c": "|w| dt beyond the engine's rotation cap a step",
@@ -143,10 +144,9 @@ def _cell(runs: list[dict], style: str) -> tuple[str, str]:
 
 
 def _grew(run: dict, key: str) -> bool:
-    """Whether an ok run's ``state_growth`` has a time for ``key`` (a blow-up, the rotation cap
-    reached; absent in older results: False)."""
-    g = run.get(STATE_GROWTH)
-    return run["status"] == Status.OK and isinstance(g, dict) and finite_or_none(g.get(key)) is not None
+    """Whether the run's judgement says ``key`` (it blew up, reached the rotation cap: only ever
+    true of an ok run; results/judgement.run_judgement decides it once)."""
+    return bool(run["judgement"][key])
 
 
 def _clip(text: str, width: int, mark: str = "...") -> str:
