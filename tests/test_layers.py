@@ -35,16 +35,10 @@ ADAPTER_HARNESS_IMPORTS = {
     "freebody.errors": "the exception types the harness catches (a leaf module)",
 }
 
-# Private cross-module imports that remain while the modules they are in are being reworked
-# (issue 27: report/ and results/ by the judging and migrations work).  Each entry is (importing module, imported module, name); the list only shrinks:
-# remove an entry once it is fixed (test_the_allowlist_holds_only_live_offenders fails on a stale
-# one), never add one.
-PRIVATE_IMPORT_ALLOWLIST: frozenset[tuple[str, str, str]] = frozenset({
-    ("freebody.report.markdown", "freebody.results.verdict", "_cell"),
-    ("freebody.report.markdown", "freebody.results.verdict", "_dt"),
-    ("freebody.report.markdown", "freebody.results.verdict", "_listed"),
-    ("freebody.report.markdown", "freebody.results.verdict", "_sorted"),
-})
+# Private cross-module imports tolerated while their modules were reworked (issue 27), as
+# (importing module, imported module, name).  Empty now, and it only shrinks: never add an entry
+# (make the name public); test_the_allowlist_holds_only_live_offenders fails on a stale one.
+PRIVATE_IMPORT_ALLOWLIST: frozenset[tuple[str, str, str]] = frozenset()
 
 
 def _module_files() -> dict[str, Path]:

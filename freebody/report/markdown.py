@@ -199,11 +199,9 @@ COMPARE_ROWS = 40  # changes shown; the rest: freebody compare
 
 def compare_rows(comparison) -> list[tuple]:
     """The changes of a comparison (failing first), as ``freebody compare`` lists them."""
-    from ..results.verdict import _cell, _dt, _listed, _sorted, shown_verdict
+    from ..results.verdict import change_rows
 
-    return [(c.label, _dt(c), c.what, _cell(c.baseline), _cell(c.current), _cell(c.limit),
-             shown_verdict(c, comparison.strict), c.note)
-            for c in _sorted([c for c in comparison.changes if _listed(c)])]
+    return change_rows(comparison)
 
 
 def compare_lines(comparison) -> list[str]:

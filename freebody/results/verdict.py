@@ -71,6 +71,18 @@ def _listed(c: Change) -> bool:
     return c.verdict != "same" or c.failed_now
 
 
+# The columns of a comparison's changes (``freebody compare``, the report's comparison section).
+CHANGE_COLUMNS = ("run", "dt", "what", "baseline", "current", "limit", "verdict", "note")
+
+
+def change_rows(cmp, show_all: bool = False) -> list[tuple]:
+    """The changes of a comparison as rows of :data:`CHANGE_COLUMNS`, failing first: every change
+    but an unchanged one (every change with ``show_all``), as ``freebody compare`` lists them."""
+    shown = _sorted([c for c in cmp.changes if show_all or _listed(c)])
+    return [(c.label, _dt(c), c.what, _cell(c.baseline), _cell(c.current), _cell(c.limit),
+             shown_verdict(c, cmp.strict), c.note) for c in shown]
+
+
 def shown_verdict(c: Change, strict: bool = False) -> str:
     """The verdict column: upper case when the change fails the gate; a run failed in the
     current results whose own verdict does not fail (new, failed on both sides) says FAILED."""
@@ -101,11 +113,9 @@ def format_comparison(cmp: Comparison, show_all: bool = False) -> str:
     if cmp.groups:
         out += ["", "what changed:"] + [f"  {g['text']}" for g in cmp.groups]
     out.append("")
-    shown = _sorted([c for c in cmp.changes if show_all or _listed(c)])
-    if shown:
-        out += _columns(("run", "dt", "what", "baseline", "current", "limit", "verdict", "note"),
-                        [(c.label, _dt(c), c.what, _cell(c.baseline), _cell(c.current), _cell(c.limit),
-                          shown_verdict(c, cmp.strict), c.note) for c in shown])
+    rows = change_rows(cmp, show_all)
+    if rows:
+        out += _columns(CHANGE_COLUMNS, rows)
     else:
         out.append("no change beyond the tolerances")
     out.append("")
