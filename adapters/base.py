@@ -13,6 +13,11 @@ import importlib
 import importlib.metadata
 import re
 import importlib.util
+import json
+import os
+import signal
+import subprocess
+import sys
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Callable, ClassVar, Iterator, NamedTuple
@@ -38,6 +43,11 @@ class EngineMissing(Exception):
 
 class UnknownEngine(KeyError):
     """No adapter is registered under that name (bad input)."""
+
+
+class PluginImportFailed(Exception):
+    """Importing a plug-in's adapter module did not finish in time, crashed or exited (see
+    :func:`probe_plugin`): its runs are failed with this message."""
 
 
 class UnsupportedOption(ValueError):
@@ -554,17 +564,110 @@ def is_available(name: str) -> bool:
     return importlib.util.find_spec(import_name) is not None
 
 
+# --- plug-ins are imported in a child process first -----------------------------------------------
+
+# The environment variable that overrides PLUGIN_IMPORT_TIMEOUT_S (seconds; ``run --timeout`` wins).
+PLUGIN_IMPORT_TIMEOUT_ENV = "FREEBODY_PLUGIN_IMPORT_TIMEOUT"
+_PROBE_MARK = "freebody-plugin-probe: "
+# The child: import the module, say how it went on one marked line, leave without atexit handlers
+_PROBE_CODE = "\n".join((
+    "import importlib, json, os, sys",
+    "sys.path[:] = json.loads(sys.argv[2])",
+    "try:",
+    "    importlib.import_module(sys.argv[1]); r = None",
+    "except BaseException as e:",
+    "    r = [type(e).__name__, str(e)[:500]]",
+    "sys.stdout.write('\\n' + sys.argv[3] + json.dumps(r) + '\\n'); sys.stdout.flush(); os._exit(0)"))
+_import_timeout_s: float | None = None  # set by run --timeout (set_plugin_import_timeout)
+_probed: dict[str, str | None] = {}  # plug-in module -> why its import failed, None: it imports
+
+
+def set_plugin_import_timeout(seconds: float | None) -> None:
+    """Use ``seconds`` (``run --timeout``) as the plug-in import limit; None: the default."""
+    global _import_timeout_s
+    _import_timeout_s = seconds
+
+
+def plugin_import_timeout() -> float:
+    """How long a plug-in's module may take to import (s): ``run --timeout`` when given, else
+    $FREEBODY_PLUGIN_IMPORT_TIMEOUT, else :data:`freebody.tolerances.PLUGIN_IMPORT_TIMEOUT_S`."""
+    from freebody.tolerances import PLUGIN_IMPORT_TIMEOUT_S
+
+    if _import_timeout_s is not None:
+        return float(_import_timeout_s)
+    try:
+        value = float(os.environ.get(PLUGIN_IMPORT_TIMEOUT_ENV, ""))
+    except ValueError:  # unset or not a number
+        return PLUGIN_IMPORT_TIMEOUT_S
+    return value if value > 0 else PLUGIN_IMPORT_TIMEOUT_S
+
+
+def plugin_import_failures() -> dict[str, str]:
+    """The plug-in modules whose import failed in this process's probes: module -> why (handed
+    to worker processes by :func:`seed_plugin_probes`, so that none waits for them again)."""
+    return {module: why for module, why in _probed.items() if why is not None}
+
+
+def seed_plugin_probes(failures: dict[str, str]) -> None:
+    """Take the failed probes of another process (:func:`plugin_import_failures`) as this one's."""
+    _probed.update(failures)
+
+
+def probe_plugin(name: str, entry: EngineEntry) -> None:
+    """Import a plug-in's adapter module in a child process, under :func:`plugin_import_timeout`,
+    once per process; PluginImportFailed (naming the plug-in, its entry point and what happened)
+    when the import did not finish in time, crashed or exited.  An exception at import is left
+    for the import in this process to raise (a broken install: a failed run with its error)."""
+    module = entry.module
+    if module not in _probed:
+        _probed[module] = _probe(module)
+    if _probed[module] is not None:
+        raise PluginImportFailed(f"plug-in {name} (entry point {ENTRY_POINT_GROUP}: {name} = "
+                                 f"{module}:{entry.cls}): {_probed[module]}")
+
+
+def _probe(module: str) -> str | None:
+    """Why importing ``module`` in a child process failed, None when it imported (or raised an
+    ordinary exception, which the import here reproduces)."""
+    timeout = plugin_import_timeout()
+    try:
+        proc = subprocess.run([sys.executable, "-c", _PROBE_CODE, module, json.dumps(sys.path), _PROBE_MARK],
+                              stdin=subprocess.DEVNULL, capture_output=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return f"import did not finish within {timeout:g} s"
+    except OSError as e:
+        return f"cannot start a process to import it: {e.strerror or e}"
+    for line in reversed(proc.stdout.decode("utf-8", "replace").splitlines()):
+        if line.startswith(_PROBE_MARK):
+            raised = json.loads(line[len(_PROBE_MARK):])
+            if raised is not None and raised[0] in ("SystemExit", "KeyboardInterrupt"):
+                return f"import exited ({raised[0]}: {raised[1] or 'no code'})"
+            return None
+    if proc.returncode < 0:
+        try:
+            sig = signal.Signals(-proc.returncode).name
+        except ValueError:
+            sig = f"signal {-proc.returncode}"
+        return f"import crashed (killed by {sig})"
+    return f"import exited with code {proc.returncode}"
+
+
 def load_adapter(name: str) -> type[Adapter]:
     """Import and return the adapter class of an engine.
 
     Raises EngineMissing when the engine's own package is not installed (only that ImportError:
-    a broken install raises its real error, to be recorded as a failed run).
+    a broken install raises its real error, to be recorded as a failed run).  A plug-in's module
+    (an entry point's, not a built-in adapter) is first imported in a child process under
+    :func:`plugin_import_timeout` (:func:`probe_plugin`): PluginImportFailed when that import
+    hangs, crashes or exits, so that no plug-in can stall or end this process.
     """
     name = base_engine(name)
     # a built-in engine wins over a plug-in of its name (registry()), so only the others need the
     # entry-point scan (about 14 ms a call, and the judge asks per run)
     entry = ENGINES[name] if name in ENGINES else registry()[name]
     import_name, module, cls, hint = entry.import_name, entry.module, entry.cls, entry.install_hint
+    if name not in ENGINES and importlib.util.find_spec(import_name) is not None:
+        probe_plugin(name, entry)  # a missing plug-in is EngineMissing below, as a built-in
     try:
         mod = importlib.import_module(module)
     except ImportError as e:

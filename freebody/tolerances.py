@@ -282,3 +282,9 @@ SCHEME_SEPARATION_RATIO = 3.0
 # symmetric_top at dt = 0.01 reach 1.2-6.5 and t_handle at 1e-3 2.0, high_spin_dt_1ms 6.5e9,
 # high_spin_dt_10ms 3e102 (after one step: 3.2).
 DIVERGENCE_ORTHONORMALITY_MAX = 1.0
+
+# How long a plug-in's adapter module (an entry point of freebody.adapters) may take to import in
+# its probe process when ``run --timeout`` is not given: the slowest built-in engine imports (JAX,
+# pydrake) take 2-10 s on a loaded 2-core machine; a minute is a hang, not a slow import.
+# $FREEBODY_PLUGIN_IMPORT_TIMEOUT overrides it.
+PLUGIN_IMPORT_TIMEOUT_S = 60.0

@@ -232,7 +232,9 @@ class LocalPool:
         self.store = tempfile.mkdtemp(prefix="freebody-truths-") if share_truths else None
         self.options = {"sys_path": list(sys.path), "engines": dict(base.ENGINES if registry is None else registry),
                         "preimport": [e for e in engines if e not in self.interpreters], "store": self.store,
-                        "env": {}}
+                        "env": {}, "plugin_import_timeout": timeout,
+                        # plug-ins whose import hung, crashed or exited here: no worker waits again
+                        "plugin_failures": base.plugin_import_failures()}
         for entry in self.options["engines"].values():
             var = entry.cache_env
             if self.store is not None and var and var not in os.environ:

@@ -183,6 +183,15 @@ def preimport(engines) -> None:
             pass
 
 
+def _plugin_options(options: dict) -> None:
+    """The parent's plug-in import limit (``--timeout``) and the plug-ins it found broken."""
+    from ..adapters import base
+
+    if options.get("plugin_import_timeout") is not None:
+        base.set_plugin_import_timeout(options["plugin_import_timeout"])
+    base.seed_plugin_probes(options.get("plugin_failures") or {})
+
+
 def _watch_parent(ppid: int) -> None:
     # a parent killed with SIGKILL cannot stop its workers: they stop themselves
     while True:
@@ -211,6 +220,7 @@ def main(argv: list[str] | None = None) -> int:
 
         base.ENGINES.clear()
         base.ENGINES.update(options["engines"])
+    _plugin_options(options)
     preimport(options.get("preimport") or ())
     runner = Runner(options.get("store"), started=lambda index: conn_out.send(("started", index)))
     conn_out.send(("ready", os.getpid()))
