@@ -10,15 +10,44 @@ User-provided text in these lines is escaped (:func:`~freebody.errors.printable`
 """
 from __future__ import annotations
 
-import argparse
-import errno
-import importlib
 import os
-import pkgutil
+import signal
 import sys
-import warnings
 
-from ..errors import InputError, printable
+
+def _exit_interrupted(signum, frame) -> None:
+    """SIGINT where :func:`main` cannot catch it (while this module imports, at exit): one line,
+    exit 130 (128 + SIGINT), no traceback."""
+    try:
+        sys.stderr.write("freebody: interrupted\n")
+        sys.stderr.flush()
+    except (OSError, ValueError, AttributeError):
+        pass
+    if _importing:  # unwind quietly (SystemExit prints nothing), whoever imports this module
+        raise SystemExit(128 + signum)
+    os._exit(128 + signum)  # Python is exiting: nothing left to unwind
+
+
+def _on_sigint(handler):
+    """Set the SIGINT handler; the previous one (None outside the main thread, where Python
+    delivers no signal)."""
+    try:
+        return signal.signal(signal.SIGINT, handler)
+    except ValueError:
+        return None
+
+
+# first of all: a Ctrl-C while the imports below run is an exit 130 with one line, not a traceback
+_importing = True
+_SIGINT_BEFORE = _on_sigint(_exit_interrupted)
+
+import argparse  # noqa: E402 (after the handler, on purpose)
+import errno  # noqa: E402
+import importlib  # noqa: E402
+import pkgutil  # noqa: E402
+import warnings  # noqa: E402
+
+from ..errors import InputError, printable  # noqa: E402
 
 
 def _commands() -> dict[str, object]:
@@ -118,6 +147,23 @@ def _closed(fd: int) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``freebody`` command (``argv``: the arguments; None: ``sys.argv[1:]``, a real command
+    line).  Ctrl-C, SIGTERM or SIGHUP at any instant (the imports of the command's modules
+    included) exits 128 + the signal's number with one line; with ``argv`` None, a Ctrl-C while
+    Python exits too (:func:`_exit_interrupted`)."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt as e:  # Ctrl-C; SIGTERM, SIGHUP during a run (run/interrupts.py)
+        signum = int(getattr(e, "signum", signal.SIGINT))  # run.interrupts.Interrupted's
+        what = "interrupted" if signum == signal.SIGINT else f"terminated by {signal.Signals(signum).name}"
+        _stderr_line(f"freebody: {what}")
+        return 128 + signum
+    finally:
+        if argv is None:  # a real command: what is left is Python's exit (atexit, the workers' joins)
+            _on_sigint(_exit_interrupted)
+
+
+def _main(argv: list[str] | None) -> int:
     if _closed(1):  # a file freebody opens would become its stdout, and the workers' too
         _stderr_line("freebody: error: standard output is closed; freebody prints its results there "
                      "(redirect it to a file instead)")
@@ -140,11 +186,6 @@ def main(argv: list[str] | None = None) -> int:
             raise
         _stderr_line(f"freebody: error: {printable(e)}")
         return 2
-    except KeyboardInterrupt as e:  # Ctrl-C; SIGTERM, SIGHUP during a run (run/interrupts.py)
-        from ..run.interrupts import describe, exit_code
-
-        sys.stderr.write(f"freebody: {describe(e)}\n")
-        return exit_code(e)
     except _StdoutError as e:  # a closed pipe (freebody ... | head -1), a full device
         if args.debug:
             raise
@@ -160,3 +201,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         sys.stdout = stdout
+
+
+# imported: Ctrl-C raises KeyboardInterrupt again (main catches it)
+_on_sigint(_SIGINT_BEFORE if _SIGINT_BEFORE is not None else signal.default_int_handler)
+_importing = False
