@@ -6,7 +6,10 @@ described, listed and cleared."""
 from __future__ import annotations
 
 import json
+import errno
 import os
+import platform
+import shutil
 import subprocess
 import sys
 import time
@@ -29,9 +32,10 @@ def root(tmp_path, monkeypatch) -> Path:
 
 
 def fake_environment(root: Path, requirement: str, key: str | None = None, complete: bool = True,
-                     **marker) -> Path:
-    """A folder that looks like an environment: pyvenv.cfg, bin/python (this interpreter) and, when
-    complete, a marker."""
+                     format1: bool = False, **marker) -> Path:
+    """A folder that looks like an environment freebody built: pyvenv.cfg, bin/python (this
+    interpreter) and, when complete, a marker as freebody writes it (``format1``: as freebody wrote
+    it before marker format 2, its key then that of the marker's fields)."""
     folder = root / (key or cache.environment_key(requirement))
     (folder / "bin").mkdir(parents=True)
     (folder / "pyvenv.cfg").write_text("home = /usr/bin\n")
@@ -40,7 +44,12 @@ def fake_environment(root: Path, requirement: str, key: str | None = None, compl
         data = {"requirement": requirement, "created": "2026-01-02T03:04:05+00:00",
                 "last_used": "2026-01-02T03:04:05+00:00", "freebody_version": freebody.__version__,
                 "python": "3.11.7", "installed": {"mujoco": "3.1.6", "numpy": "2.0.0"},
-                "source_digest": "0" * 64, "pins": True, "core": build.core_versions(), **marker}
+                "source_digest": "0" * 64, "pins": True, "core": build.core_versions(),
+                "machine": platform.machine(), **marker}
+        if format1:
+            data = {**data, "key": folder.name}
+        else:
+            data = cache.sealed(data, folder.name, [p.name for p in folder.iterdir()])
         (folder / cache.MARKER).write_text(json.dumps(data))
     return folder
 
@@ -114,9 +123,11 @@ def test_list_and_clear_a_fake_tree(root):
     a = fake_environment(root, "mujoco==3.1.6")
     old = fake_environment(root, "mujoco==3.1.6", key="mujoco-3.1.6-0123456789ab", freebody_version="0.1.0")
     b = fake_environment(root, "pybullet==3.2.5", installed={"pybullet": "3.2.5"})
-    incomplete = fake_environment(root, "dartpy==0.2", complete=False)
+    incomplete = fake_environment(root, "dartpy==0.2", complete=False)  # no marker: not freebody's
     leftover = root / f".tmp-{cache.environment_key('dartpy==0.2')}-abcd1234"
-    leftover.mkdir()
+    leftover.mkdir()  # an interrupted build's folder, named in its record
+    (root / "locks").mkdir()
+    (root / "locks" / f"{cache.environment_key('dartpy==0.2')}.building").write_text(leftover.name)
     unrelated = root / "my-notes"  # not an environment: never touched
     unrelated.mkdir()
     (unrelated / "keep.txt").write_text("mine")
@@ -136,12 +147,14 @@ def test_list_and_clear_a_fake_tree(root):
     assert not a.exists() and not old.exists() and b.exists()
     assert not (root / "logs" / f"{a.name}.log").exists()
     assert cache.clear_environments(["mujoco==3.1.6"]) == []
-    # an incomplete environment is found by its key
-    assert cache.clear_environments(["dartpy==0.2"]) == [incomplete]
-    # everything: the rest and the leftovers of interrupted builds, nothing else
+    # a folder without freebody's marker is not freebody's, whatever its name
+    assert cache.clear_environments(["dartpy==0.2"]) == [] and (incomplete / "pyvenv.cfg").is_file()
+    # everything: the rest and the recorded leftovers of interrupted builds, nothing else
     assert sorted(cache.clear_environments()) == sorted([b, leftover])
     assert cache.list_environments() == [] and (unrelated / "keep.txt").read_text() == "mine"
-    assert cache.clear_environments() == []
+    assert cache.clear_environments() == [] and (incomplete / "pyvenv.cfg").is_file()
+    assert cache.foreign_entries() == [(incomplete, "named like an environment, without freebody's marker"),
+                                       (unrelated, "not made by freebody")]
 
 
 def test_list_and_clear_without_a_root(root):
@@ -215,8 +228,8 @@ def test_incomplete_or_outdated_environment_is_rebuilt(damage, root, monkeypatch
     built = []
     monkeypatch.setattr(build, "_build", lambda req, env, *a: built.append(env.requirement))
     requirement = "mujoco==3.1.6"
-    if damage == "no marker":
-        fake_environment(root, requirement, complete=False)
+    if damage == "no marker":  # an empty folder (a clear killed before its last step)
+        (root / cache.environment_key(requirement)).mkdir(parents=True)
     elif damage == "other core versions":
         fake_environment(root, requirement, core={"numpy": "1.0"})
     elif damage == "interpreter gone":
@@ -302,8 +315,9 @@ def test_build_failure_is_one_line_and_leaves_nothing(root, monkeypatch):
     with pytest.raises(build.EnvironmentFailed) as e:
         build.ensure_environment(requirement)
     log = root / "logs" / f"{cache.environment_key(requirement)}.log"
-    assert str(e.value) == (f"cannot create the environment for {requirement}: No matching distribution "
-                            f"found for {requirement} (install log: {log})")
+    assert str(e.value) == (f"cannot create the environment for {requirement} in "
+                            f"{root / cache.environment_key(requirement)}: no such version: No matching "
+                            f"distribution found for {requirement} (install log: {log})")
     assert len([c for c in fake.commands if "install" in c]) == 1  # no retry: the engine does not exist
     assert sorted(p.name for p in root.iterdir()) == ["locks", "logs"]
 
@@ -441,8 +455,9 @@ def test_requirement_that_cannot_be_installed(root):
     message = str(e.value)
     log = root / "logs" / f"{cache.environment_key(requirement)}.log"
     assert "\n" not in message
-    assert message == (f"cannot create the environment for {requirement}: No matching distribution found "
-                       f"for {requirement} (install log: {log})")
+    assert message == (f"cannot create the environment for {requirement} in "
+                       f"{root / cache.environment_key(requirement)}: no such version: No matching distribution "
+                       f"found for {requirement} (install log: {log})")
     assert log.is_file() and requirement in log.read_text()
     assert sorted(p.name for p in root.iterdir()) == ["locks", "logs"]  # nothing half-built left
 

@@ -67,6 +67,7 @@ def _list() -> int:
     envs = list_environments()
     if not envs:
         print(f"no environments in {env_root()}")
+        _print_foreign()
         return 0
     rows = [("requirement", "installed", "size MB", "last used", "path")]
     for e in envs:
@@ -83,7 +84,18 @@ def _list() -> int:
     widths = [max(len(r[i]) for r in rows) for i in range(4)]
     for r in rows:
         print("  ".join(f"{c:<{w}}" for c, w in zip(r, widths)) + "  " + r[4])
+    _print_foreign()
     return 0
+
+
+def _print_foreign() -> None:
+    """One line for each entry of the environments' folder that freebody did not make (it never
+    lists nor removes them)."""
+    from ..envs.cache import foreign_entries
+    from ..errors import printable
+
+    for path, why in foreign_entries():
+        print(f"not freebody's, left alone: {printable(str(path))} ({why})")
 
 
 def _local_time(stamp) -> str:
@@ -106,6 +118,7 @@ def _clear(requirements: list[str]) -> int:
             print(f"removed {path}")
         if not removed:
             print(f"no environments in {env_root()}")
+        _print_foreign()
         return 0
     for requirement in requirements:
         removed = clear_environments([requirement])
@@ -113,4 +126,5 @@ def _clear(requirements: list[str]) -> int:
             print(f"removed {path}")
         if not removed:
             print(f"no environment for {requirement} in {env_root()}")
+    _print_foreign()
     return 0

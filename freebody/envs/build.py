@@ -31,6 +31,7 @@ Design decisions:
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import importlib.metadata
 import importlib.util
@@ -47,8 +48,10 @@ from pathlib import Path, PurePosixPath
 from typing import Callable
 
 from ..errors import printable
-from .cache import (TMP_PREFIX, EngineEnvironment, env_root, environment_key, freebody_version, locked, now,
-                    read_marker, site_packages, write_marker)
+from ..results.io import check_output_file
+from .cache import (BUILDING_SUFFIX, TMP_PREFIX, EngineEnvironment, building_folder, env_root, environment_key,
+                    freebody_version, locked, now, owned_marker, remove_environment, sealed, site_packages,
+                    write_marker)
 from .requirements import NAME_PATTERN, ParsedRequirement, canonical_name, declared_name, parse_requirement
 
 # The package trees copied into an environment (the package-dir mapping of pyproject.toml).
@@ -60,15 +63,48 @@ IMPORT_CHECK = "import freebody, freebody.adapters.base, freebody.run.worker"
 
 
 class EnvironmentFailed(Exception):
-    """An environment could not be created.  ``str()`` is one line: the requirement, why (pip's or
-    uv's key error line) and, when there is one, ``install log: PATH``."""
+    """An environment could not be created.  ``str()`` is one line: the requirement, the
+    environment's folder (when known), the cause when one is recognised (:func:`cause_of`: the
+    disk is full, no such version, no network), why (pip's or uv's key error line, or the system's
+    error) and, when there is one, ``install log: PATH``."""
 
-    def __init__(self, requirement: str, why: str, log: Path | None = None):
+    def __init__(self, requirement: str, why: str, log: Path | None = None, path: Path | None = None,
+                 cause: str | None = None):
         self.requirement = requirement
         self.why = why
         self.log = log
+        self.path = path
+        self.cause = cause
         where = f" (install log: {log})" if log is not None else ""
-        super().__init__(printable(f"cannot create the environment for {requirement}: {why}{where}"))
+        folder = f" in {path}" if path is not None else ""
+        because = f"{cause}: " if cause else ""
+        super().__init__(printable(f"cannot create the environment for {requirement}{folder}: "
+                                   f"{because}{why}{where}"))
+
+
+# The causes :func:`cause_of` recognises in an error number or in pip's and uv's output, in order.
+_DISK_FULL = "the disk is full"
+_CAUSES = (
+    (_DISK_FULL, (errno.ENOSPC,), ("No space left on device",)),
+    ("the disk quota is reached", (errno.EDQUOT,), ("Disk quota exceeded",)),
+    ("no network (the package index cannot be reached)", (errno.ENETUNREACH, errno.ECONNREFUSED),
+     ("Failed to establish a new connection", "Temporary failure in name resolution",
+      "Name or service not known", "Network is unreachable", "Connection refused", "ConnectTimeout",
+      "Read timed out", "dns error", "error sending request", "Failed to fetch")),
+)
+
+
+def cause_of(output: str = "", code: int | None = None, name: str | None = None) -> str | None:
+    """Why a build failed, in words: ``the disk is full``, ``the disk quota is reached``, ``no
+    network ...`` (from the error number ``code`` or the text ``output``), or ``no such version``
+    (pip's or uv's output says that the distribution ``name`` has no matching version); None when
+    none is recognised."""
+    for cause, codes, texts in _CAUSES:
+        if code in codes or any(t in output for t in texts):
+            return cause
+    if name is not None and _not_found(key_error(output), name):
+        return "no such version"
+    return None
 
 
 # --- freebody's source ------------------------------------------------------------------------------
@@ -256,12 +292,12 @@ def _not_found(why: str, name: str) -> bool:
     return bool(m) and canonical_name(m.group(1)) == name
 
 
-# --- markers -------------------------------------------------------------------------------------------
 # --- building ------------------------------------------------------------------------------------------
 
 def _usable(marker: dict | None, env: EngineEnvironment, core: dict[str, str]) -> bool:
-    """Whether a marker describes a complete environment for ``env`` built beside this process's
-    core versions, whose interpreter still exists."""
+    """Whether a marker (one freebody wrote: :func:`~freebody.envs.cache.owned_marker`) describes
+    a complete environment for ``env`` built beside this process's core versions, whose
+    interpreter still exists."""
     return (marker is not None and marker.get("requirement") == env.requirement
             and marker.get("core") == core and os.path.exists(env.python))
 
@@ -272,108 +308,160 @@ def ensure_environment(requirement: str, progress: Callable[[str], None] | None 
     A complete cached environment is reused (its ``last_used`` updated; freebody's source copied
     again when it changed).  Otherwise it is built under the environment's lock (a second process
     waits, then reuses it).  ``progress`` receives one line per stage.  InputError for a bad
-    requirement; :class:`EnvironmentFailed` when the build fails.
+    requirement; :class:`EnvironmentFailed` when the build fails (also for an error of the system,
+    a full disk, named with its cause), or when the environment's folder exists and is not one
+    freebody built (it is never removed).
     """
     req = parse_requirement(requirement)
     key = environment_key(req.normalised)
     root = env_root()
     path = root / key
     env = EngineEnvironment(req.normalised, path, path / "bin" / "python")
-    say = progress or (lambda line: None)
+    log = root / "logs" / f"{key}.log"
+    try:
+        _ensure(req, env, key, progress or (lambda line: None))
+    except EnvironmentFailed as e:
+        if e.path is None:
+            raise EnvironmentFailed(e.requirement, e.why, e.log, path, e.cause) from None
+        raise
+    except OSError as e:
+        why = f"{e.strerror or e}: {printable(e.filename)}" if e.filename is not None else str(e.strerror or e)
+        raise EnvironmentFailed(req.normalised, why, log if log.is_file() else None, path,
+                                cause_of(why, e.errno)) from None
+    return env
+
+
+def _ensure(req: ParsedRequirement, env: EngineEnvironment, key: str, say: Callable[[str], None]) -> None:
+    """:func:`ensure_environment`'s work."""
+    root, path = env.path.parent, env.path
     files = source_files()
     digest = source_digest(files)
     core = core_versions()
 
-    marker = read_marker(path)
+    marker = owned_marker(path) if path.is_dir() else None
     if _usable(marker, env, core) and marker.get("source_digest") == digest:
         _touch(path, marker)
-        return env
+        return
     root.mkdir(parents=True, exist_ok=True)
     with locked(root, key, lambda: say(f"waiting for another freebody process creating the environment "
                                         f"for {req.normalised}")):
-        marker = read_marker(path)
+        marker = owned_marker(path) if path.is_dir() else None
         if _usable(marker, env, core):
             if marker.get("source_digest") != digest:
                 say(f"copying freebody's changed source into the environment for {req.normalised}")
                 marker["source_digest"] = copy_source(site_packages(path), files)
             _touch(path, marker)
-            return env
-        for leftover in root.glob(f"{TMP_PREFIX}{key}-*"):  # of a process killed while building
-            shutil.rmtree(leftover, ignore_errors=True)
+            return
+        _make_room(root, key, path, marker, req.normalised)
         _build(req, env, key, files, core, say)
-    return env
+
+
+def _make_room(root: Path, key: str, path: Path, marker: dict | None, requirement: str) -> None:
+    """Before a build (under the lock): remove the folder of an earlier build of ``key`` that was
+    killed, and the outdated environment at ``path`` when freebody built it; EnvironmentFailed
+    when ``path`` holds anything freebody did not make (it is left as it is)."""
+    leftover = building_folder(root, key)
+    if leftover is not None:
+        shutil.rmtree(leftover, ignore_errors=True)
+    with contextlib.suppress(FileNotFoundError):
+        (root / "locks" / f"{key}{BUILDING_SUFFIX}").unlink()
+    if path.is_symlink() or path.exists() and not path.is_dir():
+        left = [path.name]
+    elif not path.exists():
+        return
+    elif marker is not None:
+        left = remove_environment(path, marker)
+    else:
+        left = sorted(p.name for p in path.iterdir())
+        if not left:
+            path.rmdir()
+    if left:
+        raise EnvironmentFailed(requirement, f"{path} exists and holds what freebody did not build "
+                                f"({', '.join(left[:5])}{', ...' if len(left) > 5 else ''}); freebody "
+                                f"removes nothing it did not make: move it away, then retry")
 
 
 def _touch(path: Path, marker: dict) -> None:
-    """Set the marker's ``last_used`` to now (nothing when the folder is not writable)."""
+    """Set the marker's ``last_used`` to now, in the current marker format (nothing when the folder
+    is not writable)."""
     marker["last_used"] = now()
     with contextlib.suppress(OSError):
-        write_marker(path, marker)
+        write_marker(path, sealed(marker, path.name, marker["entries"]))
 
 
 def _build(req: ParsedRequirement, env: EngineEnvironment, key: str, files: dict[str, Path],
            core: dict[str, str], say: Callable[[str], None]) -> None:
-    """Build the environment in a temporary sibling folder, check it, write its marker and rename it
-    into place (under the lock held by the caller)."""
+    """Build the environment in a temporary sibling folder (named in ``locks/<key>.building`` until
+    the build ends), check it, write its marker and rename it into place (under the lock held by
+    the caller; the folder ``env.path`` no longer exists)."""
     started = time.monotonic()
     root = env.path.parent
     say(f"creating environment for {req.normalised} in {env.path} (first use; this takes a minute)")
     (root / "logs").mkdir(parents=True, exist_ok=True)
-    log_path = root / "logs" / f"{key}.log"
+    log_path = check_output_file(root / "logs" / f"{key}.log", "environment log")  # as every file freebody writes
+    record = root / "locks" / f"{key}{BUILDING_SUFFIX}"
     tmp = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{key}-", dir=root))
     try:
+        record.write_text(f"{tmp.name}\n")
         os.chmod(tmp, 0o755)  # mkdtemp's 0700 would hide a shared FREEBODY_ENV_DIR's environment
         with open(log_path, "w") as log:
             log.write(f"freebody {freebody_version()}: environment for {req.normalised}, built in {tmp} "
                       f"and renamed to {env.path}, {now()}\n\n")
             uv = find_uv()
-            py = tmp / "bin" / "python"
-            venv = ([uv, "venv", "--python", sys.executable, tmp] if uv
-                    else [sys.executable, "-m", "venv", tmp])
-            code, out = _run_logged(venv, log)
-            if code != 0:
-                raise EnvironmentFailed(req.normalised, f"creating the virtual environment failed: "
-                                                        f"{key_error(out)}", log_path)
-
-            def install(requirements: list[str]) -> tuple[int, str]:
-                cmd = ([uv, "pip", "install", "--python", py] if uv
-                       else [py, "-m", "pip", "install", "--disable-pip-version-check", "--no-input"])
-                return _run_logged([*cmd, *requirements], log)
-
-            say("copying freebody")
-            site = site_packages(tmp)
-            digest = copy_source(site, files)
-            declared = core_requirements()
-            _write_dist_info(site, declared)
-
-            pinned = _install_engine(req, core, declared, install, say, log_path)
-
-            say("checking")
-            code, out = _run_logged([py, "-P", "-c", IMPORT_CHECK], log, cwd=tmp)
-            if code != 0:
-                raise EnvironmentFailed(req.normalised, f"freebody does not import there: {key_error(out)}",
-                                        log_path)
-            installed, core_installed = _installed(py, req, core, log, tmp)
-            if installed is None:
-                raise EnvironmentFailed(req.normalised, f"{req.name} is not installed after the install",
-                                        log_path)
-            _check_version(req, installed, log_path)
+            marker = _build_in(req, tmp, files, core, uv, log, log_path, say)
             built = time.monotonic() - started
             log.write(f"ready in {built:.1f} s\n")
         stamp = now()
-        write_marker(tmp, {
-            "requirement": req.normalised, "key": key, "freebody_version": freebody_version(),
-            "python": platform.python_version(), "base_python": sys.executable,
-            "machine": platform.machine(), "installer": "uv" if uv else "pip", "pins": pinned,
-            "core": core, "core_installed": core_installed, "installed": installed,
-            "source_digest": digest, "created": stamp, "last_used": stamp, "build_seconds": round(built, 1)})
-        if env.path.exists():  # an incomplete or outdated folder
-            shutil.rmtree(env.path)
+        entries = [p.name for p in tmp.iterdir()]
+        write_marker(tmp, sealed({**marker, "created": stamp, "last_used": stamp,
+                                  "build_seconds": round(built, 1)}, key, entries))
         os.rename(tmp, env.path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        with contextlib.suppress(OSError):
+            record.unlink()
     say(f"ready in {built:.0f} s")
+
+
+def _build_in(req: ParsedRequirement, tmp: Path, files: dict[str, Path], core: dict[str, str], uv: str | None,
+              log, log_path: Path, say: Callable[[str], None]) -> dict:
+    """The venv, the copy of freebody, the install and the checks, in the folder ``tmp``; the
+    marker's fields (without its times)."""
+    py = tmp / "bin" / "python"
+    venv = [uv, "venv", "--python", sys.executable, tmp] if uv else [sys.executable, "-m", "venv", tmp]
+    code, out = _run_logged(venv, log)
+    if code != 0:
+        raise EnvironmentFailed(req.normalised, f"creating the virtual environment failed: {key_error(out)}",
+                                log_path, cause=cause_of(out))
+
+    def install(requirements: list[str]) -> tuple[int, str]:
+        cmd = ([uv, "pip", "install", "--python", py] if uv
+               else [py, "-m", "pip", "install", "--disable-pip-version-check", "--no-input"])
+        return _run_logged([*cmd, *requirements], log)
+
+    say("copying freebody")
+    site = site_packages(tmp)
+    digest = copy_source(site, files)
+    declared = core_requirements()
+    _write_dist_info(site, declared)
+
+    pinned = _install_engine(req, core, declared, install, say, log_path)
+
+    say("checking")
+    code, out = _run_logged([py, "-P", "-c", IMPORT_CHECK], log, cwd=tmp)
+    if code != 0:
+        raise EnvironmentFailed(req.normalised, f"freebody does not import there: {key_error(out)}", log_path,
+                                cause=cause_of(out))
+    installed, core_installed = _installed(py, req, core, log, tmp)
+    if installed is None:
+        raise EnvironmentFailed(req.normalised, f"{req.name} is not installed after the install", log_path)
+    _check_version(req, installed, log_path)
+    return {"requirement": req.normalised, "freebody_version": freebody_version(),
+            "python": platform.python_version(), "base_python": sys.executable,
+            "machine": platform.machine(), "installer": "uv" if uv else "pip", "pins": pinned,
+            "core": core, "core_installed": core_installed, "installed": installed, "source_digest": digest}
 
 
 def _install_engine(req: ParsedRequirement, core: dict[str, str], declared: list[str],
@@ -390,13 +478,13 @@ def _install_engine(req: ParsedRequirement, core: dict[str, str], declared: list
         return True
     why = key_error(out)
     if _not_found(why, req.name):
-        raise EnvironmentFailed(req.normalised, why, log_path)
+        raise EnvironmentFailed(req.normalised, why, log_path, cause=cause_of(out, name=req.name))
     say(f"installing beside freebody's pinned versions failed ({why.rstrip('.')}); "
         f"retrying without the pins")
     unpinned = [r for r in declared if declared_name(r) != req.name]
     code, out = install([req.normalised, *unpinned])
     if code != 0:
-        raise EnvironmentFailed(req.normalised, key_error(out), log_path)
+        raise EnvironmentFailed(req.normalised, key_error(out), log_path, cause=cause_of(out, name=req.name))
     return False
 
 

@@ -62,7 +62,81 @@ def parse_requirement(requirement: str) -> ParsedRequirement:
         extras = sorted(canonical_name(e) for e in req.extras)
         spec = str(req.specifier)
     normalised = name + (f"[{','.join(extras)}]" if extras else "") + spec
+    clash = unsatisfiable(spec)
+    if clash:
+        raise InputError(f"unsatisfiable engine requirement {printable(repr(requirement))}: no version of {name} "
+                         f"is {clash}; give one version (mujoco==3.1.6) or a range that holds one")
     return ParsedRequirement(name, normalised, spec)
+
+
+_CLAUSE_RE = re.compile(r"[ \t]*(~=|===|==|!=|<=|>=|<|>)[ \t]*(\S+?)[ \t]*")
+
+
+def _version_key():
+    """A function from a version's text to a comparable value (None when it cannot compare it):
+    packaging's Version when packaging is installed, else the release numbers of a plain
+    ``N.N.N`` version, trailing zeros dropped."""
+    try:
+        from packaging.version import InvalidVersion, Version
+    except ImportError:
+        def simple(text: str):
+            if not re.fullmatch(r"\d+(?:\.\d+)*", text):
+                return None
+            parts = [int(x) for x in text.split(".")]
+            while len(parts) > 1 and parts[-1] == 0:
+                parts.pop()
+            return tuple(parts)
+        return simple
+
+    def full(text: str):
+        try:
+            return Version(text)
+        except InvalidVersion:
+            return None
+    return full
+
+
+def _holds(version: str, clauses: list[tuple[str, str]], key) -> bool:
+    """Whether ``version`` satisfies every clause (packaging's SpecifierSet when installed; else each
+    clause of plain versions compared, a clause it cannot compare counted as holding)."""
+    try:
+        from packaging.specifiers import SpecifierSet
+    except ImportError:
+        pass
+    else:
+        return SpecifierSet(",".join(op + v for op, v in clauses)).contains(version, prereleases=True)
+    a = key(version)
+    for op, bound in clauses:
+        b = key(bound)
+        if op == "===":
+            ok = version == bound
+        elif a is None or b is None:
+            continue
+        else:
+            ok = {"==": a == b, "!=": a != b, "<": a < b, "<=": a <= b, ">": a > b, ">=": a >= b,
+                  "~=": a >= b and a[:max(len(b) - 1, 1)] == b[:max(len(b) - 1, 1)]}[op]
+        if not ok:
+            return False
+    return True
+
+
+def unsatisfiable(spec: str) -> str | None:
+    """The clauses of a version specifier (``<3.1.6,==3.1.6``) as words (``==3.1.6 and <3.1.6``) when
+    no version can satisfy them all, obviously: an exact version (``==``, ``===``) that another
+    clause excludes, or a lower bound above an upper one; else None (pip decides the rest)."""
+    clauses = [(m[1], m[2]) for c in spec.split(",") if (m := _CLAUSE_RE.fullmatch(c))]
+    key = _version_key()
+    words = " and ".join(op + v for op, v in sorted(clauses, key=lambda c: c[0] not in ("==", "===")))
+    exact = [v for op, v in clauses if op in ("==", "===") and "*" not in v]
+    if exact:
+        return None if all(_holds(v, clauses, key) for v in exact) else words
+    lows = [(k, op == ">") for op, v in clauses if op in (">", ">=", "~=") and (k := key(v)) is not None]
+    highs = [(k, op == "<") for op, v in clauses if op in ("<", "<=") and (k := key(v)) is not None]
+    if not lows or not highs:
+        return None
+    low, low_strict = max(lows)
+    high, high_strict = min(highs, key=lambda h: (h[0], not h[1]))
+    return words if low > high or (low == high and (low_strict or high_strict)) else None
 
 
 def normalise_requirement(requirement: str) -> str:
