@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..adapters.base import REFERENCE_ENGINE
+from ..errors import InputError
 from ..numbers import finite_or_none
 from ..reference_impl.conventions import angular_momentum, kinetic_energy, potential_energy
 from ..reference_impl.problem import Body
@@ -235,12 +236,12 @@ def _final(run: dict, out_dir: Path | None) -> dict | None:
     if isinstance(fs, dict) and fs.get("quaternion_wxyz") is not None:
         return fs
     if out_dir is not None and run["trajectory"]:
-        from ..results.document import load_trajectory
+        from ..results.document import load_trajectory, trajectory_max_bytes, trajectory_path
 
         try:
-            tr, _ = load_trajectory(Path(out_dir) / run["trajectory"])
+            tr, _ = load_trajectory(trajectory_path(Path(out_dir), run["trajectory"]), trajectory_max_bytes(run))
             return tr.state(-1).as_dict()
-        except (OSError, KeyError, ValueError, IndexError):
+        except (OSError, KeyError, ValueError, IndexError, InputError):  # InputError: FileRefused
             return None
     return None
 
@@ -570,10 +571,12 @@ def trajectory_reader(out_dir: Path | None):
     def read(run: dict):
         if out_dir is None or not run["trajectory"]:
             return None
+        from ..results.document import open_run_trajectory
+
         try:
-            with np.load(Path(out_dir) / run["trajectory"]) as z:
+            with open_run_trajectory(Path(out_dir), run) as z:
                 return (np.asarray(z["t"]), np.asarray(z["quaternion_wxyz"]), np.asarray(z["truth_quaternion_wxyz"]))
-        except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile, InputError):  # InputError: FileRefused
             return None
     return read
 
@@ -660,9 +663,14 @@ class SeriesReader:
         return hit
 
     def read(self, path: Path, run: dict) -> tuple[RunSeries, TruthSeries]:
-        """(the run's series, its truth) from its trajectory file.  OSError, KeyError or
-        ValueError when the file is unreadable; NoTruth when it has no truth or no samples."""
-        with np.load(path) as z:
+        """(the run's series, its truth) from its trajectory file ``path`` (found by
+        :func:`freebody.results.document.trajectory_path`).  OSError, KeyError or ValueError when
+        the file is unreadable, InputError (FileRefused) when it is no regular file or too large for
+        the run (:func:`freebody.results.document.trajectory_max_bytes`); NoTruth when it has no
+        truth or no samples."""
+        from ..results.document import open_npz, trajectory_max_bytes
+
+        with open_npz(path, trajectory_max_bytes(run)) as z:
             truth = self._truth(z)
             if truth is None:
                 raise NoTruth(path)

@@ -30,6 +30,8 @@ from . import data as rd
 from .. import tolerances as tol
 from ..run.convergence import FITTED_METRICS, MIN_POINTS
 from ..run.metrics import ORIENTATION_ERROR_MAX
+from ..results.document import trajectory_path
+from ..results.io import FileRefused
 from ..run.records import Status
 
 DPI = 90
@@ -583,9 +585,12 @@ def _load_case_runs(runs: list[dict], physics: rd.CasePhysics | None, out_dir: P
         if r.get("status") not in (Status.OK, Status.DIVERGED) or not r.get("trajectory"):
             continue
         try:
-            s, truth = reader.read(Path(out_dir) / r["trajectory"], r)
+            s, truth = reader.read(trajectory_path(Path(out_dir), r["trajectory"]), r)
         except rd.NoTruth:
             notes.append(f"{rd.label(r)}: no truth in {r['trajectory']}")
+            continue
+        except FileRefused as e:  # not a regular file inside the folder, or too large
+            notes.append(f"{rd.label(r)}: trajectory file {r['trajectory']} not read: {e.reason}")
             continue
         except (OSError, KeyError, ValueError, zipfile.BadZipFile) as e:
             notes.append(f"{rd.label(r)}: trajectory file {r['trajectory']} unreadable ({type(e).__name__})")

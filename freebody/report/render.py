@@ -6,6 +6,7 @@ which re-renders both from results.json and the trajectory files without running
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from . import data as rd
@@ -66,15 +67,19 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     problems : case name -> Problem, for cases that results.json does not describe.
     baseline : a baseline (file, results.json, run directory or dict) to compare the results with:
         the reports then show the verdict of ``freebody compare`` (a finding and a section).
-    Returns the paths written.
+    Returns the paths written.  A run whose trajectory is not a regular file inside ``out_dir``
+    (:func:`freebody.results.document.usable_trajectories`) is drawn without it, with a warning.
     """
     from . import findings as fd
     from .markdown import render_markdown
 
-    from ..results.document import load_results
+    from ..results.document import load_results, usable_trajectories
 
     out_dir = Path(out_dir)
     doc = load_results(out_dir if doc is None else doc)  # the newest shape (a document in memory too)
+    doc, refused = usable_trajectories(doc, out_dir)  # only regular files inside out_dir are read
+    for line in refused:
+        warnings.warn(line, stacklevel=2)
     conv = convergence_of(doc)
     runs = doc.get("runs") or []
     physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}

@@ -1,8 +1,8 @@
-"""results.json (schema version 5) and the per-run trajectory files, written atomically.
+"""results.json (schema version 6) and the per-run trajectory files, written atomically.
 
 results.json::
 
-    {"schema_version": 5, "freebody_version", "created", "platform", "engines": {name: version},
+    {"schema_version": 6, "freebody_version", "created", "platform", "engines": {name: version},
      "incomplete": false, "runs": [RunResult.to_json(), ...], ...}
 
 Schema 2 added each run's ``experiment`` (what was simulated: :mod:`freebody.run.experiment`)
@@ -30,6 +30,11 @@ present (blow-up, rotation cap, the map it reproduces or comes closest to, satur
 order; :mod:`freebody.results.judgement`), computed once when the run is recorded; an older
 document's runs get theirs on load from their stored fields, by the same function.
 
+Schema 6 (issue 28) added, in each judged run's ``metrics``, ``quaternion_norm_error_max``
+(max_k |1 - |q_k|| of the quaternions as the engine handed them out) and, in its ``judgement``,
+``non_unit_quaternion`` (that beyond round-off: a finding).  An older run's metric is null
+(unknown) and its ``non_unit_quaternion`` false.
+
 Every document read is migrated on load (:func:`load_results` -> :func:`migrate`, one
 ``_update_to_N`` per schema version, asv's ``update_to_N``), so that readers see the newest shape
 only; the keys it guarantees, and those that stay optional, are listed above :func:`_update_to_2`.
@@ -52,9 +57,12 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import platform
+import zipfile
+from contextlib import contextmanager
 from datetime import datetime, timezone
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 
 import numpy as np
 
@@ -64,10 +72,10 @@ from ..numbers import finite_or_none
 from ..adapters.base import REFERENCE_ENGINE
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.integrators import INTEGRATOR_ALIASES
-from .io import read_json, write_npz_atomic
+from .io import FileRefused, open_regular_file, read_json, write_npz_atomic
 
-SCHEMA_VERSION = 5
-READABLE_SCHEMA_VERSIONS = (1, 2, 3, 4, 5)  # results.json / baseline versions this freebody reads
+SCHEMA_VERSION = 6
+READABLE_SCHEMA_VERSIONS = (1, 2, 3, 4, 5, 6)  # results.json / baseline versions this freebody reads
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
 
 
@@ -211,13 +219,123 @@ def write_trajectory(path: Path, tr: Trajectory, truth: Trajectory | None, index
     write_npz_atomic(Path(path), arrays)
 
 
-def load_trajectory(path: Path) -> tuple[Trajectory, Trajectory | None]:
-    """(run trajectory, truth trajectory or None) from a trajectory file."""
-    with np.load(path) as z:
+def load_trajectory(path: Path, limit: int | None = None) -> tuple[Trajectory, Trajectory | None]:
+    """(run trajectory, truth trajectory or None) from a trajectory file (a regular file, not a
+    symbolic link, of at most ``limit`` bytes, default TRAJECTORY_FILE_MAX_BYTES: :func:`open_npz`)."""
+    with open_npz(path, TRAJECTORY_FILE_MAX_BYTES if limit is None else limit) as z:
         tr = Trajectory(*(z[f] for f in _FIELDS),
                         orthonormality_error=z["orthonormality_error"] if "orthonormality_error" in z else None)
         truth = Trajectory(*(z["truth_" + f] for f in _FIELDS)) if "truth_t" in z else None
     return tr, truth
+
+
+# --- reading a run's trajectory file: data, not a path to follow ---------------------------------
+#
+# A run's ``trajectory`` comes from a results document, which anyone may have written: it is read
+# only when it names a regular file inside the document's folder (:func:`trajectory_path`: relative,
+# no "..", no symbolic link leading out of the folder; :func:`open_npz`: no FIFO, device, socket or
+# folder, opened non-blocking), of at most :func:`trajectory_max_bytes` (on the disk and
+# uncompressed), so that no results file makes a report open /etc/passwd, block on a FIFO or read
+# /dev/zero.  Any other is the run's missing trajectory, with a warning (:func:`usable_trajectories`).
+#
+# A trajectory file's bytes per saved sample: at most 16 arrays of float64 / int64 values (run: t 1,
+# position 3, quaternion 4, velocities 3 + 3, orthonormality 1, sample_index 1; truth: 14) = 30 x 8.
+TRAJECTORY_BYTES_PER_SAMPLE = 30 * 8
+# What a trajectory file holds besides its samples: the zip's directory and a .npy header per array
+# (16 arrays of ~200 bytes), with room to spare.
+TRAJECTORY_FIXED_BYTES = 64 * 1024
+# At most, whatever a run's steps say (and for a run that does not say): 2 GiB is a run of 8.9
+# million steps saved at every step (--save-every 1); the default keeps ~800 samples (~200 KB).
+TRAJECTORY_FILE_MAX_BYTES = 2 * 2 ** 30
+
+
+def trajectory_max_bytes(run: dict) -> int:
+    """The most a run's trajectory file may hold (on the disk, and uncompressed): its samples, at
+    most one per step and the first (steps + 1), TRAJECTORY_BYTES_PER_SAMPLE each, plus
+    TRAJECTORY_FIXED_BYTES; TRAJECTORY_FILE_MAX_BYTES when larger or the run's steps are unknown."""
+    steps = run.get("steps")
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        return TRAJECTORY_FILE_MAX_BYTES
+    return min(TRAJECTORY_FILE_MAX_BYTES, TRAJECTORY_FIXED_BYTES + TRAJECTORY_BYTES_PER_SAMPLE * (steps + 1))
+
+
+def trajectory_path(folder: Path, rel) -> Path:
+    """The file a run's ``trajectory`` ``rel`` names in the results folder ``folder`` (symbolic
+    links resolved), or FileRefused (what: the path as written; reason: why it is not read): an
+    absolute path, a ".." part, or a path that resolves outside ``folder`` (a symbolic link to
+    another folder) is not read."""
+    what = f"trajectory {printable(str(rel))}"
+    if not isinstance(rel, str) or not rel or "\x00" in rel:
+        raise FileRefused(what, "not a file name")
+    if PurePosixPath(rel).is_absolute() or PureWindowsPath(rel).anchor:
+        raise FileRefused(what, "an absolute path; a run's trajectory is a path inside its results folder")
+    if ".." in PurePosixPath(rel).parts or ".." in PureWindowsPath(rel).parts:
+        raise FileRefused(what, "leads out of its results folder (..)")
+    root = os.path.realpath(folder)
+    real = os.path.realpath(os.path.join(root, rel))
+    if os.path.commonpath([root, real]) != root:
+        raise FileRefused(what, f"a symbolic link out of its results folder (to {printable(real)})")
+    return Path(real)
+
+
+@contextmanager
+def open_npz(path: Path, limit: int, what: str | None = None):
+    """The npz file ``path`` opened (``np.load``, no pickles) when it is a regular file, not a
+    symbolic link, of at most ``limit`` bytes on the disk and uncompressed; else FileRefused."""
+    what = what or printable(str(path))
+    fd = open_regular_file(path, limit, what, follow_symlinks=False)
+    with os.fdopen(fd, "rb") as f:
+        try:
+            z = np.load(f, allow_pickle=False)
+        except (ValueError, OSError, zipfile.BadZipFile, EOFError) as e:
+            raise FileRefused(what, f"not a trajectory file ({type(e).__name__})") from None
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise FileRefused(what, "not a trajectory file (not an npz archive)")
+        with z:
+            size = sum(i.file_size for i in z.zip.infolist())
+            if size > limit:
+                raise FileRefused(what, f"too large: {size} bytes uncompressed, more than the {limit} "
+                                        f"its run's steps allow")
+            yield z
+
+
+@contextmanager
+def open_run_trajectory(folder: Path, run: dict):
+    """A run's trajectory file in the results folder ``folder``, opened (:func:`open_npz`) when it
+    is a regular file inside the folder (:func:`trajectory_path`) of at most
+    :func:`trajectory_max_bytes`; else FileRefused (its ``reason`` says why)."""
+    path = trajectory_path(folder, run["trajectory"])
+    with open_npz(path, trajectory_max_bytes(run), f"trajectory {printable(str(run['trajectory']))}") as z:
+        yield z
+
+
+def trajectory_problem(folder: Path, run: dict) -> str | None:
+    """Why a run's trajectory file is not read (:func:`open_run_trajectory`), or None when it is
+    usable or the run has none."""
+    if not run.get("trajectory"):
+        return None
+    try:
+        path = trajectory_path(folder, run["trajectory"])
+        os.close(open_regular_file(path, trajectory_max_bytes(run), "", follow_symlinks=False))
+    except FileRefused as e:
+        return e.reason
+    return None
+
+
+def usable_trajectories(doc: dict, folder: Path) -> tuple[dict, list[str]]:
+    """(``doc`` with the ``trajectory`` of each run whose file is not read set to None, one line per
+    such run naming it and the reason).  A run of a results document read from ``folder``: its
+    trajectory is read only when :func:`trajectory_problem` finds nothing; ``doc`` is not modified."""
+    runs, lines = [], []
+    for i, r in enumerate(doc["runs"]):
+        why = trajectory_problem(folder, r)
+        if why is not None:
+            lines.append(f"runs[{i}] ({printable(r['case'])} {printable(r['engine'])}/"
+                         f"{printable(r['integrator'])} dt={r['dt']}): trajectory "
+                         f"{abbreviated(r['trajectory'], 80)} treated as missing: {why}")
+            r = {**r, "trajectory": None}
+        runs.append(r)
+    return ({**doc, "runs": runs} if lines else doc), lines
 
 
 REQUIRED_RUN_KEYS = ("case", "engine", "integrator", "dt", "status")
@@ -274,6 +392,111 @@ def _json_type(value) -> str:
     return "a boolean" if isinstance(value, bool) else _JSON_TYPE.get(type(value), type(value).__name__)
 
 
+# The types of the other parts of a document that readers (report, compare, baseline, findings)
+# index, as freebody writes them (run/convergence.py, report/render.augment, results/baseline.py,
+# results/judgement.py, run/judge.py); a part that is present must have one of them.  Objects keyed
+# by names (``cases``, ``levels_rad``, ...) are checked entry by entry.
+_NULL = type(None)
+_OPT_NUMBER = (*_NUMBER, _NULL)
+_OPT_STR = (str, _NULL)
+_DOC_FIELD_TYPES = {"freebody_version": _OPT_STR, "created": _OPT_STR, "platform": _OPT_STR,
+                    "cases": (dict, _NULL), "convergence": (list, _NULL), "baseline": (dict, _NULL)}
+_CASE_FIELD_TYPES = {"description": _OPT_STR, "truth": _OPT_STR, "mass": _OPT_NUMBER, "inertia": (list, _NULL),
+                     "gravity": (list, _NULL), "dts": (list, _NULL), "ran": (list, _NULL),
+                     "defaults": (list, _NULL), "state_dependent_loads": (bool, _NULL),
+                     "torque_free": (bool, _NULL), "duration": _OPT_NUMBER, "duration_steps": (int, _NULL)}
+_RAN_FIELD_TYPES = {"dt": _NUMBER, "steps": (int, _NULL), "duration_s": _OPT_NUMBER}
+_CONVERGENCE_REQUIRED = ("case", "engine", "integrator", "metric")
+_CONVERGENCE_FIELD_TYPES = {"case": (str,), "engine": (str,), "integrator": (str,), "metric": (str,),
+                            "precision": _OPT_STR, "order": _OPT_NUMBER, "dts": (list, _NULL),
+                            "errors": (list, _NULL), "fitted_dts": (list, _NULL),
+                            "log10_coefficient": _OPT_NUMBER, "fit_rms_decades": _OPT_NUMBER,
+                            "saturated": (bool, _NULL), "reason": _OPT_STR}
+_BASELINE_FIELD_TYPES = {"source": _OPT_STR, "runs": (int, _NULL)}
+_MATCH_FIELD_TYPES = {"verdict": _OPT_STR, "integrator": _OPT_STR, "closest": _OPT_STR,
+                      "max_orientation_diff_rad": _OPT_NUMBER, "threshold_rad": _OPT_NUMBER, "rule": _OPT_STR,
+                      "indistinguishable": (list, _NULL), "undecidable": (list, _NULL),
+                      "levels_rad": (dict, _NULL), "ratios": (dict, _NULL), "candidates": (dict, _NULL)}
+_JUDGEMENT_FIELD_TYPES = {"scheme": _OPT_STR, "reproduced": (bool, _NULL), "schemes": (list,),
+                          "scheme_distance_rad": _OPT_NUMBER, "scheme_level_rad": _OPT_NUMBER,
+                          "scheme_ratio": _OPT_NUMBER, "saturated": (bool,), "order": (int, _NULL),
+                          "order_maps": (list,), "blew_up": (bool,), "capped": (bool,)}
+_FINAL_STATE_FIELD_TYPES = {"t": _OPT_NUMBER, "quaternion_wxyz": (list, _NULL), "angular_velocity": (list, _NULL),
+                            "linear_velocity": (list, _NULL), "position": (list, _NULL)}
+_EXPERIMENT_FIELD_TYPES = {"dt": _OPT_NUMBER, "steps": (int, _NULL), "duration_s": _OPT_NUMBER,
+                           "settings": (dict, _NULL)}
+
+
+def _check_fields(obj: dict, types: dict, where: str) -> None:
+    """InputError naming ``<where><key>`` (``where`` ends with ": " or ".") when a key of ``obj``
+    listed in ``types`` has a value of none of its types (a JSON boolean is one only where ``bool``
+    is listed: it is no number)."""
+    for k, allowed in types.items():
+        x = obj.get(k)
+        if k not in obj or (isinstance(x, bool) and bool in allowed):
+            continue
+        if isinstance(x, bool) or not isinstance(x, allowed):
+            kinds = " or ".join(_JSON_TYPE.get(t, "true or false") for t in dict.fromkeys(allowed))
+            raise InputError(f"{where}{printable(str(k))}: must be {kinds}, got {_json_type(x)}: "
+                             f"{abbreviated(x, 40)}")
+
+
+def _object(x, where: str) -> dict:
+    if not isinstance(x, dict):
+        raise InputError(f"{where}: must be an object, got {_json_type(x)}: {abbreviated(x, 40)}")
+    return x
+
+
+def _check_items(items, allowed: tuple, where: str) -> None:
+    """Each entry of a list (``where[i]``) of one of the ``allowed`` types (no boolean as a number)."""
+    for i, x in enumerate(items or []):
+        if isinstance(x, bool) or not isinstance(x, allowed):
+            kind = "a number" if allowed == _NUMBER else _JSON_TYPE[allowed[0]]
+            raise InputError(f"{where}[{i}]: must be {kind}, got {_json_type(x)}")
+
+
+def _check_parts(doc: dict, where: str) -> None:
+    """The types of the document's parts besides its runs (:data:`_DOC_FIELD_TYPES`): ``cases``
+    (each an object, :data:`_CASE_FIELD_TYPES`, its ``ran`` entries), ``convergence`` (each an
+    object naming its case, engine, integrator and metric), ``baseline``."""
+    _check_fields(doc, _DOC_FIELD_TYPES, f"{where}: ")
+    for name, rec in (doc.get("cases") or {}).items():
+        at = f"{where}: cases.{printable(str(name))}"
+        _check_fields(_object(rec, at), _CASE_FIELD_TYPES, f"{at}.")
+        for i, ran in enumerate(rec.get("ran") or []):
+            _check_fields(_object(ran, f"{at}.ran[{i}]"), _RAN_FIELD_TYPES, f"{at}.ran[{i}].")
+        _check_items(rec.get("dts"), _NUMBER, f"{at}.dts")
+        _check_items(rec.get("defaults"), (str,), f"{at}.defaults")
+    for i, e in enumerate(doc.get("convergence") or []):
+        at = f"{where}: convergence[{i}]"
+        for k in _CONVERGENCE_REQUIRED:
+            if k not in _object(e, at):
+                raise InputError(f"{at}.{k}: missing")
+        _check_fields(e, _CONVERGENCE_FIELD_TYPES, f"{at}.")
+    if doc.get("baseline") is not None:
+        _check_fields(doc["baseline"], _BASELINE_FIELD_TYPES, f"{where}: baseline.")
+
+
+def _check_run_parts(r: dict, where: str) -> None:
+    """The types of a run's objects that readers index: ``matches_reference`` (its map names,
+    numbers, lists of names and objects of numbers), ``judgement``, ``final_state``,
+    ``experiment``, ``state_growth`` (numbers or null)."""
+    m = r.get("matches_reference")
+    if m is not None:
+        _check_fields(m, _MATCH_FIELD_TYPES, f"{where}.matches_reference.")
+        for k in ("indistinguishable", "undecidable"):
+            _check_items(m.get(k), (str,), f"{where}.matches_reference.{k}")
+        for k in ("levels_rad", "ratios", "candidates"):
+            named = m.get(k) or {}
+            _check_fields(named, dict.fromkeys(named, _OPT_NUMBER), f"{where}.matches_reference.{k}.")
+    for k, types in (("judgement", _JUDGEMENT_FIELD_TYPES), ("final_state", _FINAL_STATE_FIELD_TYPES),
+                     ("experiment", _EXPERIMENT_FIELD_TYPES)):
+        if r.get(k) is not None:
+            _check_fields(r[k], types, f"{where}.{k}.")
+    growth = r.get("state_growth") or {}
+    _check_fields(growth, dict.fromkeys(growth, _OPT_NUMBER), f"{where}.state_growth.")
+
+
 def check_results(doc, where: str) -> dict:
     """Validate a loaded results document: its schema version, ``engines``, ``incomplete`` and every
     run's identity, status and the types of the fields readers use (:data:`_RUN_FIELD_TYPES`);
@@ -301,8 +524,10 @@ def check_results(doc, where: str) -> dict:
     runs = doc.get("runs")
     if not isinstance(runs, list):
         raise InputError(f"{where}: runs: missing or not a list")
+    _check_parts(doc, where)
     for i, r in enumerate(runs):
         _check_run(r, f"{where}: runs[{i}]", STATUSES)
+        _check_run_parts(r, f"{where}: runs[{i}]")
     return upgrade_names(migrate(doc))
 
 
@@ -402,8 +627,22 @@ def _update_to_5(doc: dict) -> dict:
     return {**doc, "runs": [with_judgement(r) for r in doc.get("runs", [])]}
 
 
+def _update_to_6(doc: dict) -> dict:
+    """Schema 5 -> 6: a judged run's (non-empty ``metrics``) ``quaternion_norm_error_max`` is
+    unknown (None), and its ``judgement`` gets ``non_unit_quaternion`` (False: unknown is no finding)."""
+    from ..run.metrics import QUATERNION_NORM_ERROR_MAX
+    from .judgement import JUDGEMENT, non_unit_quaternion
+
+    for r in _runs(doc):
+        if isinstance(r.get("metrics"), dict) and r["metrics"]:
+            r["metrics"] = {QUATERNION_NORM_ERROR_MAX: None, **r["metrics"]}
+        if isinstance(r.get(JUDGEMENT), dict) and "non_unit_quaternion" not in r[JUDGEMENT]:
+            r[JUDGEMENT] = {**r[JUDGEMENT], "non_unit_quaternion": non_unit_quaternion(r)}
+    return doc
+
+
 # One step per schema version: step N brings a document of version N - 1 to N.
-_MIGRATIONS = {2: _update_to_2, 3: _update_to_3, 4: _update_to_4, 5: _update_to_5}
+_MIGRATIONS = {2: _update_to_2, 3: _update_to_3, 4: _update_to_4, 5: _update_to_5, 6: _update_to_6}
 
 # Every run key (RunResult.to_json) and its value when a file leaves it out (never for the five
 # REQUIRED_RUN_KEYS, checked on load).
