@@ -85,23 +85,20 @@ def _mib(n: int) -> str:
     return f"{n / 2 ** 20:.4g} MiB"
 
 
-def read_regular_file(path: str | Path, limit: int, what: str) -> bytes:
-    """The bytes of the regular file ``path``, at most ``limit`` bytes; else :class:`FileRefused`
-    (an InputError, one line ``"<what>: <reason>"``).
-
-    Every input file goes through here (case files, meshes, results documents and baselines,
-    ``--tolerances``): a FIFO would block forever and /dev/zero or /dev/urandom would be read until
-    memory runs out, so only regular files are read (checked with stat before opening, so a device
-    is never opened, and with fstat of the opened file, which is opened non-blocking), and only up
-    to ``limit`` bytes (the limits are in :mod:`freebody.tolerances`); a file that grows past the
-    limit while being read is refused as well.
-    """
+def open_regular_file(path: str | Path, limit: int, what: str, follow_symlinks: bool = True) -> int:
+    """A read-only descriptor of the regular file ``path`` of at most ``limit`` bytes, else
+    :class:`FileRefused` (one line ``"<what>: <reason>"``): checked with stat before opening (a
+    device is never opened) and with fstat of the descriptor, opened non-blocking (a FIFO swapped in
+    between cannot block).  ``follow_symlinks`` False: a symbolic link is refused too (lstat, and
+    O_NOFOLLOW where the system has it).  The caller closes the descriptor."""
     try:
-        mode = os.stat(path).st_mode
+        mode = (os.stat if follow_symlinks else os.lstat)(path).st_mode
+        if stat.S_ISLNK(mode):
+            raise FileRefused(what, "a symbolic link, not a regular file")
         if not stat.S_ISREG(mode):
             raise FileRefused(what, f"not a regular file ({file_kind(mode)})")
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
-                     | getattr(os, "O_BINARY", 0))
+                     | getattr(os, "O_BINARY", 0) | (0 if follow_symlinks else getattr(os, "O_NOFOLLOW", 0)))
     except FileNotFoundError:
         raise FileRefused(what, "no such file") from None
     except OSError as e:
@@ -113,6 +110,24 @@ def read_regular_file(path: str | Path, limit: int, what: str) -> bytes:
         if st.st_size > limit:
             raise FileRefused(what, f"too large: {_mib(st.st_size)}, more than the {_mib(limit)} "
                                     f"freebody reads from such a file")
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def read_regular_file(path: str | Path, limit: int, what: str) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` bytes; else :class:`FileRefused`
+    (an InputError, one line ``"<what>: <reason>"``).
+
+    Every input file goes through here (case files, meshes, results documents and baselines,
+    ``--tolerances``; trajectory files through :func:`open_regular_file`): a FIFO would block
+    forever and /dev/zero or /dev/urandom would be read until memory runs out, so only regular
+    files are read (:func:`open_regular_file`), and only up to ``limit`` bytes (the limits are in
+    :mod:`freebody.tolerances`); a file that grows past the limit while being read is refused as well.
+    """
+    fd = open_regular_file(path, limit, what)
+    try:
         chunks, size = [], 0
         while size <= limit:
             chunk = os.read(fd, min(limit + 1 - size, 1 << 24))
