@@ -51,7 +51,9 @@ at the saved samples (see :data:`SAVED_SAMPLES`); files written by this release 
 ``sample_index (N,)`` int64, the step k of each saved sample (t = k dt).
 A run's ``trajectory`` is its file's path relative to the folder of results.json:
 ``trajectories/<n>/<name>.npz``, one folder ``<n>`` per invocation (see :mod:`.outdir`), or
-``trajectories/<name>.npz`` in folders written by earlier releases; readers simply join the two.
+``trajectories/<name>.npz`` in folders written by earlier releases.  Readers open it only through
+:func:`open_run_trajectory`: a regular file inside that folder, of at most the bytes the run's steps
+allow (a results file is data, not a path to follow; any other is the run's missing trajectory).
 """
 from __future__ import annotations
 
