@@ -117,6 +117,38 @@ def test_invalid_requirement_is_one_line_input_error(text, packaging, monkeypatc
     assert not root.exists()  # nothing was created
 
 
+UNSATISFIABLE = ["mujoco==3.1.6,<3.1.6", "mujoco==3.1.6,!=3.1.6", "mujoco==3.1.6,==3.1.7", "mujoco>=4,<3",
+                 "mujoco>3,<=3", "mujoco~=3.1,<3.0", "mujoco==3.1.6, >3.1.6"]
+SATISFIABLE = ["mujoco>=3,<=3", "mujoco==3.1.6,>=3.1", "mujoco==3.1.*,<4", "mujoco>=3,<4", "mujoco!=3.1.6",
+               "mujoco==3.1.6,<3.1.6.post1"]
+
+
+@pytest.mark.parametrize("packaging", [True, False], ids=["packaging", "regex"])
+def test_unsatisfiable_specifier_is_refused_before_any_work(packaging, monkeypatch, root, capsys):
+    if not packaging:
+        for module in ("packaging.requirements", "packaging.specifiers", "packaging.version"):
+            monkeypatch.setitem(sys.modules, module, None)
+    for text in SATISFIABLE:
+        requirements.normalise_requirement(text)
+    monkeypatch.setattr(build, "_build", lambda *a: pytest.fail("built an unsatisfiable requirement"))
+    for text in UNSATISFIABLE:
+        with pytest.raises(InputError, match=r"^unsatisfiable engine requirement .*: no version of mujoco is "):
+            build.ensure_environment(text)
+        assert main(["envs", "create", text]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "unsatisfiable engine requirement" in err
+    assert str(requirements.unsatisfiable("<3.1.6,==3.1.6")) == "==3.1.6 and <3.1.6"
+    assert not root.exists()  # nothing was created
+
+
+def test_unsatisfiable_engine_of_a_run_is_refused_before_any_work(tmp_path, root, capsys):
+    out = tmp_path / "out"
+    code = main(["run", "dzhanibekov", "--engine", "mujoco==3.1.6,<3.1.6", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "unsatisfiable engine requirement" in err, err
+    assert not root.exists() and not out.exists()
+
+
 # --- listing and clearing ----------------------------------------------------------------------------
 
 def test_list_and_clear_a_fake_tree(root):
@@ -198,6 +230,96 @@ def test_cli_envs_bad_input_is_one_line(argv, expected, root, capsys):
     err = capsys.readouterr().err
     assert code == 2 and expected in err and err.count("\n") == 1
     assert not root.exists()
+
+
+def test_clear_removes_only_what_freebody_built(root, capsys):
+    """Issue 28, item 5: folders that look like environments but that freebody did not build are
+    left with everything in them, and listed as not freebody's."""
+    mine = fake_environment(root, "mujoco==3.1.6")
+    (mine / "notes.txt").write_text("put there by hand")  # kept, with its folder
+    venv = root / "myproj-0123456789ab"  # a key's name and a pyvenv.cfg: a user's own venv
+    venv.mkdir()
+    (venv / "pyvenv.cfg").write_text("home = /usr/bin\n")
+    (venv / "work.py").write_text("mine")
+    copied = root / "backup"  # freebody's environment copied by hand: the marker is for another folder
+    shutil.copytree(mine, copied, symlinks=True)
+    forged = fake_environment(root, "pybullet==3.2.5")  # a marker edited by hand: its digest no longer holds
+    marker = json.loads((forged / cache.MARKER).read_text())
+    (forged / cache.MARKER).write_text(json.dumps({**marker, "entries": [*marker["entries"], "data"]}))
+    stray = root / f".tmp-{cache.environment_key('dartpy==0.2')}-abcd1234"  # no build recorded it
+    stray.mkdir()
+    (stray / "x").write_text("mine")
+
+    assert [e["path"] for e in cache.list_environments()] == [str(mine)]
+    assert main(["envs", "clear"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == f"removed {mine}"
+    foreign = sorted([mine, venv, copied, forged, stray])
+    assert lines[1:] == [f"not freebody's, left alone: {p} ({why})" for p, why in cache.foreign_entries()]
+    assert [p for p, _ in cache.foreign_entries()] == foreign
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    assert (venv / "work.py").read_text() == "mine" and (copied / cache.MARKER).is_file()
+    assert (forged / "pyvenv.cfg").is_file() and (stray / "x").read_text() == "mine"
+    assert cache.clear_environments(["pybullet==3.2.5"]) == [] and (forged / cache.MARKER).is_file()
+    assert main(["envs", "list"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == f"no environments in {root}" and len(out) == 1 + len(foreign)
+    assert all(line.startswith("not freebody's, left alone: ") for line in out[1:])
+
+
+def test_marker_of_the_previous_format(root, monkeypatch):
+    """A marker freebody wrote before format 2 is accepted when it holds what freebody wrote (its
+    key is the folder's name and the hash of its fields); its next use rewrites it in format 2; of
+    it, clear removes the venv's entries only."""
+    monkeypatch.setattr(build, "_build", lambda *a, **k: pytest.fail("rebuilt a usable environment"))
+    old = fake_environment(root, "mujoco==3.1.6", format1=True, source_digest=build.source_digest())
+    assert cache.owned_marker(old) is not None and [e["path"] for e in cache.list_environments()] == [str(old)]
+    build.ensure_environment("mujoco==3.1.6")
+    marker = json.loads((old / cache.MARKER).read_text())
+    assert marker["marker_format"] == cache.MARKER_FORMAT
+    assert marker["entries"] == sorted(["bin", "pyvenv.cfg", cache.MARKER])
+    # a format-1 marker whose key is not the folder's, or not the hash of its fields: not freebody's
+    renamed = fake_environment(root, "pybullet==3.2.5", format1=True, key="pybullet-3.2.5-0123456789ab")
+    (renamed / cache.MARKER).write_text(json.dumps({**json.loads((renamed / cache.MARKER).read_text()),
+                                                   "key": "pybullet-3.2.5-0123456789ab"}))
+    other = root / "elsewhere"
+    shutil.copytree(old, other, symlinks=True)
+    (other / cache.MARKER).write_text(json.dumps({**marker, "marker_format": None}))
+    assert cache.owned_marker(renamed) is None and cache.owned_marker(other) is None
+    (old / "results.json").write_text("{}")  # not a venv's entry: kept
+    assert cache.clear_environments() == [old]
+    assert sorted(p.name for p in old.iterdir()) == ["results.json"]
+    assert renamed.is_dir() and other.is_dir()
+
+
+def test_folder_at_the_key_that_is_not_freebodys_is_never_replaced(root, monkeypatch):
+    monkeypatch.setattr(build, "_build", lambda *a: pytest.fail("built over a folder that is not freebody's"))
+    folder = root / cache.environment_key("mujoco==3.1.6")
+    folder.mkdir(parents=True)
+    (folder / "pyvenv.cfg").write_text("home = /usr/bin\n")
+    (folder / "data.csv").write_text("mine")
+    with pytest.raises(build.EnvironmentFailed) as e:
+        build.ensure_environment("mujoco==3.1.6")
+    assert str(e.value) == (f"cannot create the environment for mujoco==3.1.6 in {folder}: {folder} exists and "
+                            f"holds what freebody did not build (data.csv, pyvenv.cfg); freebody removes nothing "
+                            f"it did not make: move it away, then retry")
+    assert sorted(p.name for p in folder.iterdir()) == ["data.csv", "pyvenv.cfg"]
+
+
+def test_killed_build_leftover_is_removed_by_the_next_build(root, monkeypatch):
+    fake = FakeInstaller([(0, "")])
+    monkeypatch.setattr(build, "_run_logged", fake)
+    monkeypatch.setattr(build, "find_uv", lambda: None)
+    key = cache.environment_key("mujoco==3.1.6")
+    leftover, unrecorded = root / f".tmp-{key}-killed00", root / f".tmp-{key}-mine0000"
+    (leftover / "bin").mkdir(parents=True)
+    unrecorded.mkdir()
+    (root / "locks").mkdir()
+    (root / "locks" / f"{key}.building").write_text(f"{leftover.name}\n")
+    env = build.ensure_environment("mujoco==3.1.6")
+    assert not leftover.exists() and unrecorded.is_dir() and env.path.is_dir()
+    assert not (root / "locks" / f"{key}.building").exists()
+    assert cache.owned_marker(env.path)["entries"] == sorted(p.name for p in env.path.iterdir())
 
 
 # --- reuse, rebuild, re-copy ---------------------------------------------------------------------------
@@ -421,6 +543,66 @@ def test_environment_failed_is_one_line(tmp_path):
     e = build.EnvironmentFailed("mujoco==9.9", "No matching distribution\nfound", tmp_path / "x.log")
     assert "\n" not in str(e) and str(e).startswith("cannot create the environment for mujoco==9.9: ")
     assert str(e).endswith(f"(install log: {tmp_path / 'x.log'})")
+
+
+# --- build errors: the environment, the requirement, the cause, the log --------------------------------
+
+class FullDisk(FakeInstaller):
+    """A build on a full disk: the command ``step`` (``venv`` or ``install``) raises ENOSPC."""
+
+    def __init__(self, step):
+        super().__init__([])
+        self.step = step
+
+    def __call__(self, cmd, log, cwd=None):
+        if self.step in [str(c) for c in cmd]:
+            raise OSError(errno.ENOSPC, "No space left on device", str(cmd[-1]))
+        return super().__call__(cmd, log, cwd)
+
+
+@pytest.mark.parametrize("step", ["venv", "install"])
+def test_full_disk_names_the_environment_requirement_cause_and_log(step, root, monkeypatch, capsys):
+    """Issue 28, item 8: a full disk (ENOSPC raised in this process) is one line naming all four."""
+    monkeypatch.setattr(build, "_run_logged", FullDisk(step))
+    monkeypatch.setattr(build, "find_uv", lambda: None)
+    assert main(["envs", "create", "mujoco==3.1.6"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    folder = root / cache.environment_key("mujoco==3.1.6")
+    log = root / "logs" / f"{folder.name}.log"
+    assert err[-1].startswith(f"freebody: error: cannot create the environment for mujoco==3.1.6 in {folder}: "
+                              f"the disk is full: No space left on device: ")
+    assert err[-1].endswith(f" (install log: {log})") and log.is_file()
+    assert sorted(p.name for p in root.iterdir()) == ["locks", "logs"]
+    assert os.listdir(root / "locks") == [f"{folder.name}.lock"]  # no build record left
+
+
+PIP_DISK_FULL = "ERROR: Could not install packages due to an OSError: [Errno 28] No space left on device\n"
+PIP_NO_NETWORK = ("WARNING: Retrying (Retry(total=4, connect=None, read=None, redirect=None, status=None)) after "
+                  "connection broken by 'NewConnectionError('<pip._vendor.urllib3.connection.HTTPSConnection "
+                  "object at 0x7f>: Failed to establish a new connection: [Errno 101] Network is unreachable')'"
+                  ": /simple/mujoco/\n" + PIP_NOT_FOUND.replace("freebody-no-such-engine", "mujoco"))
+
+
+@pytest.mark.parametrize("output, cause", [(PIP_DISK_FULL, "the disk is full"),
+                                           (PIP_NO_NETWORK, "no network (the package index cannot be reached)"),
+                                           (PIP_NOT_FOUND.replace("freebody-no-such-engine", "mujoco"),
+                                            "no such version")])
+def test_pip_failure_names_its_cause(output, cause, root, monkeypatch):
+    monkeypatch.setattr(build, "_run_logged", FakeInstaller([(1, output), (1, output)]))
+    monkeypatch.setattr(build, "find_uv", lambda: None)
+    with pytest.raises(build.EnvironmentFailed) as e:
+        build.ensure_environment("mujoco==0.0.1")
+    assert e.value.cause == cause
+    assert str(e.value).startswith(f"cannot create the environment for mujoco==0.0.1 in "
+                                   f"{root / cache.environment_key('mujoco==0.0.1')}: {cause}: ")
+
+
+def test_cause_of():
+    assert build.cause_of(code=errno.ENOSPC) == "the disk is full"
+    assert build.cause_of(code=errno.EDQUOT) == "the disk quota is reached"
+    assert build.cause_of(UV_NOT_FOUND, name="mujoco") == "no such version"
+    assert build.cause_of(PIP_NOT_FOUND, name="mujoco") is None  # another distribution is missing
+    assert build.cause_of(PIP_CONFLICT, name="scipy") is None and build.cause_of("") is None
 
 
 # --- describing an engine ------------------------------------------------------------------------------
