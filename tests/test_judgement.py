@@ -83,7 +83,9 @@ def old_facts(run: dict) -> dict:
             "order_maps": [] if key is None or saturated else [[n, _old_order(n)] for n in (schemes or [key[0]])],
             "blew_up": ok and finite_or_none(g.get("blow_up_t_s")) is not None,
             "capped": ok and finite_or_none(g.get("rotation_cap_t_s")) is not None
-            and finite_or_none(g.get("step_rotation_cap_rad")) is not None}
+            and finite_or_none(g.get("step_rotation_cap_rad")) is not None,
+            # schema 6 (tests/test_quaternion_norm.py): none of these runs' engines hands out a non-unit q
+            "non_unit_quaternion": False}
 
 
 # --- runs -------------------------------------------------------------------------------------------
@@ -135,7 +137,7 @@ def hand_made() -> list[dict]:
 # --- tests ------------------------------------------------------------------------------------------
 
 def test_every_run_stores_the_facts_findings_derived_after_the_fact(doc):
-    assert doc["schema_version"] == SCHEMA_VERSION == 5
+    assert doc["schema_version"] == SCHEMA_VERSION == 6
     for r in doc["runs"]:
         assert r[jd.JUDGEMENT] == old_facts(r), (r["engine"], r["integrator"], r["case"], r["dt"])
     facts = [r[jd.JUDGEMENT] for r in doc["runs"]]

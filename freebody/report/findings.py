@@ -26,6 +26,8 @@ with each other to round-off; runs of two groups differ by their schemes.  A fin
   convention trap); it names the map the run reproduces and points at the engine's conventions;
 - ``vs-engine``: a ported engine (e.g. MJX) farther from its original than round-off, or not
   compared with it;
+- ``non-unit-quaternion``: an ok run whose quaternions, as its engine handed them out, are not unit
+  beyond round-off (``judgement["non_unit_quaternion"]``, metric ``quaternion_norm_error_max``);
 - ``failed``, ``diverged``, ``unsupported-version`` (skipped: the adapter does not drive this
   engine version) and ``not-installed`` (skipped) runs.
 
@@ -47,7 +49,8 @@ import numpy as np
 from .. import tolerances as tol
 from ..adapters.base import REFERENCE_ENGINE
 from ..numbers import finite_or_none
-from ..run.metrics import ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, STATE_GROWTH
+from ..run.metrics import (ORIENTATION_ERROR_MAX, ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, QUATERNION_NORM_ERROR_MAX,
+                           STATE_GROWTH)
 from ..run.records import Status
 from ..results import identification
 from ..results.judgement import JUDGEMENT, map_distance
@@ -63,6 +66,7 @@ KINDS = {
     "outlier": ("warning", "error far above the other engines'"),
     "blow-up": ("warning", "|w| or energy blew up"),
     "rotation-cap": ("warning", "rotation per step beyond the engine's cap"),
+    "non-unit-quaternion": ("warning", "engine returns non-unit quaternions"),
     "order": ("warning", "observed order far from the expected one"),
     "diverged": ("warning", "diverged"),
     "unsupported-version": ("warning", "engine version not supported"),
@@ -550,6 +554,23 @@ def rotation_cap_findings(runs: list[dict]) -> list[Finding]:
     return out
 
 
+def non_unit_quaternion_findings(runs: list[dict]) -> list[Finding]:
+    """Ok runs whose engine handed out quaternions that are not unit (``judgement``: their largest
+    |1 - |q|| beyond QUATERNION_NORM_ROUNDOFF of their precision).  The harness uses q / |q|
+    wherever a rotation is needed, so the run's other metrics are those of that rotation."""
+    out = []
+    for r in runs:
+        if not judged(r)["non_unit_quaternion"]:
+            continue
+        x = _metric(r, QUATERNION_NORM_ERROR_MAX)
+        bound = tol.QUATERNION_NORM_ROUNDOFF.get(_precision(r), tol.QUATERNION_NORM_ROUNDOFF["float64"])
+        text = (f"returns non-unit quaternions: max |1 - |q|| = {_e(x)}, beyond the {_precision(r)} "
+                f"round-off {bound:g}; freebody judged the rotation q / |q|, but the engine's state as it "
+                f"hands it out is no unit quaternion")
+        out.append(_finding("non-unit-quaternion", r, text, source=QUATERNION_NORM_ERROR_MAX))
+    return out
+
+
 # --- expected orders of convergence ----------------------------------------------------------------
 
 # An observed order (the fitted slope of the orientation error over >= 3 dts) this far from the
@@ -855,7 +876,8 @@ def find(runs: list[dict], trajectory: TrajectoryOf | None = None, convergence: 
     ``cases`` (results.json ``cases``): the ``order`` findings, none without them."""
     found = (status_findings(runs) + blow_up_findings(runs) + no_map_findings(runs)
              + disagreement_findings(runs, trajectory) + outlier_findings(runs, trajectory)
-             + vs_engine_findings(runs) + order_findings(runs, convergence, cases))
+             + vs_engine_findings(runs) + order_findings(runs, convergence, cases)
+             + non_unit_quaternion_findings(runs))
     from .version_findings import version_findings  # it imports this module
 
     found += version_findings(runs, convergence)
@@ -921,7 +943,7 @@ def numbers(f: Finding) -> str:
 # Kinds whose finding points at the engine's conventions (a trap or scheme of that engine).
 CONVENTION_KINDS = ("outlier", "no-map", "scheme-switch", "same-map-disagreement", "diverged", "failed",
                     "rotation-cap", "blow-up", "order",
-                    "vs-engine")
+                    "vs-engine", "non-unit-quaternion")
 
 
 def counts(findings: list[Finding]) -> dict[str, int]:

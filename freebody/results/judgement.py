@@ -29,8 +29,12 @@ set of runs.
                                       #   saturated
      "blew_up": bool,                 # an ok run whose |w| or kinetic energy passed the blow-up bounds
                                       #   (``state_growth["blow_up_t_s"]``)
-     "capped": bool}                  # an ok run whose |w| dt passed its engine's declared rotation cap
+     "capped": bool,                  # an ok run whose |w| dt passed its engine's declared rotation cap
                                       #   per step (``state_growth["rotation_cap_t_s"]``)
+     "non_unit_quaternion": bool}     # an ok run whose quaternions, as its engine handed them out, are
+                                      #   not unit: metric ``quaternion_norm_error_max`` beyond
+                                      #   QUATERNION_NORM_ROUNDOFF of its precision (schema 6; False
+                                      #   when the metric is unknown: a run written before)
 """
 from __future__ import annotations
 
@@ -112,9 +116,21 @@ def _growth_flags(run: dict) -> tuple[bool, bool]:
     return blew_up, capped
 
 
+def non_unit_quaternion(run: dict) -> bool:
+    """Whether an ok run's largest |1 - |q|| (its metric ``quaternion_norm_error_max``) is beyond
+    QUATERNION_NORM_ROUNDOFF of its precision (float64's for a precision it does not list)."""
+    from ..run.metrics import QUATERNION_NORM_ERROR_MAX  # here: run/ imports this module
+
+    metrics = run.get("metrics")
+    x = finite_or_none(metrics.get(QUATERNION_NORM_ERROR_MAX)) if isinstance(metrics, dict) else None
+    bound = tol.QUATERNION_NORM_ROUNDOFF.get(run.get("precision") or "float64",
+                                             tol.QUATERNION_NORM_ROUNDOFF["float64"])
+    return run["status"] == OK and x is not None and x > bound
+
+
 def run_judgement(run: dict) -> dict:
     """The ``judgement`` of a run (see the module docstring) from its results.json fields
-    (``engine``, ``integrator``, ``status``, ``matches_reference``, ``state_growth``)."""
+    (``engine``, ``integrator``, ``status``, ``matches_reference``, ``state_growth``, ``metrics``)."""
     m = match(run)
     key = _scheme(run, m)
     schemes = list(identification.reproduced(m)) if m is not None else []
@@ -133,7 +149,8 @@ def run_judgement(run: dict) -> dict:
     return {"scheme": name, "reproduced": reproduced, "schemes": schemes,
             "scheme_distance_rad": distance, "scheme_level_rad": map_level(m, name) if key else None,
             "scheme_ratio": map_ratio(m, name) if key else None, "saturated": saturated,
-            "order": order, "order_maps": order_maps, "blew_up": blew_up, "capped": capped}
+            "order": order, "order_maps": order_maps, "blew_up": blew_up, "capped": capped,
+            "non_unit_quaternion": non_unit_quaternion(run)}
 
 
 def with_judgement(run: dict) -> dict:

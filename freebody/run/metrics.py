@@ -28,6 +28,9 @@ ANGULAR_MOMENTUM_ERROR_MAX_ABS = "angular_momentum_error_max_abs"  # instead of 
 ENERGY_ERROR_MAX_ABS = "energy_error_max_abs_J"  # instead of _rel when the truth's KE is 0
 # diverged runs: the orientation error over the samples before the divergence
 ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE = "orientation_error_max_before_divergence_rad"
+# max_k |1 - |q_k||, the quaternions as the engine handed them out (before anything normalises
+# them: the other metrics use q / |q|); a diverged run's: its largest finite value (schema 6)
+QUATERNION_NORM_ERROR_MAX = "quaternion_norm_error_max"
 
 METRIC_KEYS = (  # the keys every judged run's metrics have
     ORIENTATION_ERROR_MAX,
@@ -36,12 +39,24 @@ METRIC_KEYS = (  # the keys every judged run's metrics have
     ENERGY_ERROR_MAX_REL,
     POSITION_ERROR_MAX,
     ROTATION_ORTHONORMALITY_ERROR_MAX,
+    QUATERNION_NORM_ERROR_MAX,
 )
 METRIC_NAMES = METRIC_KEYS + (  # every metric a run may have
     ANGULAR_MOMENTUM_ERROR_MAX_ABS,
     ENERGY_ERROR_MAX_ABS,
     ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE,
 )
+# Metrics that are recorded and judged (a finding) but that ``freebody compare`` does not gate on:
+# the quaternion's norm error is round-off (1e-16 .. 1e-7) on every engine that normalises, its
+# changes below the finding's bound (tolerances.QUATERNION_NORM_ROUNDOFF) mean nothing, and a
+# baseline written before schema 6 has none (each of its runs would read as "changed").
+DIAGNOSTIC_METRICS = (QUATERNION_NORM_ERROR_MAX,)
+
+
+def quaternion_norm_error(q: np.ndarray) -> np.ndarray:
+    """|1 - |q_k|| (N,) of quaternions q (N, 4) as given (not normalised)."""
+    with np.errstate(all="ignore"):
+        return np.abs(1.0 - np.linalg.norm(q, axis=-1))
 
 
 @dataclass(frozen=True)
@@ -400,6 +415,7 @@ class RunMetrics:
         self.engine_t: float | None = None
         self.truth_max: Scales | None = None  # the truth's maxima over the samples fed
         self.growth = GrowthStats(dt, cap)
+        self.quaternion_norm = RunningMax()  # |1 - |q||, the engine's q before any normalisation
 
     @property
     def undiverged(self) -> bool:
@@ -413,6 +429,7 @@ class RunMetrics:
         Returns (the chunk's :class:`Series`, the global indices of the divergences first found in
         it, each array's index of its largest finite value before this chunk)."""
         pb, m = self.pb, len(tr)
+        self.quaternion_norm.update(quaternion_norm_error(tr.quaternion_wxyz), k0)  # before series() uses q / |q|
         self.truth_max = truth_scales(pb, truth).merged(self.truth_max)
         s = series(pb, tr, truth, self.scales)
         ortho = tr.orthonormality_error
@@ -452,14 +469,16 @@ class RunMetrics:
     def result(self, diverged_index: int | None) -> tuple[dict, dict]:
         """(results.json ``metrics``, ``state_growth``) of the samples fed; ``diverged_index``: the
         run diverged there (:meth:`divergence`): its metrics are kept up to it only, but for R's
-        orthonormality error (how far it went: its largest finite value, as it becomes inf/NaN in
-        the end)."""
+        orthonormality error and the quaternion's norm error (how far they went: their largest
+        finite values, as the state becomes inf/NaN in the end)."""
         metrics = self.stats.metrics(self.truth_max.momentum > 0, self.truth_max.ke > 0)
+        metrics[QUATERNION_NORM_ERROR_MAX] = self.quaternion_norm.max
         d = diverged_index
         if d is not None:  # metrics past a blow-up are meaningless
-            metrics = {k: (v if k == ROTATION_ORTHONORMALITY_ERROR_MAX else None) for k, v in metrics.items()}
+            metrics = {k: None for k in metrics}
             if self.stats.has_orthonormality:
                 metrics[ROTATION_ORTHONORMALITY_ERROR_MAX] = self.stats.maxima["orthonormality_error"].best
+            metrics[QUATERNION_NORM_ERROR_MAX] = self.quaternion_norm.best
             if d >= 1:
                 metrics[ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE] = self.before[d].maxima["orientation_error"].max
         return {k: finite_or_none(v) for k, v in metrics.items()}, self.growth.result(self.scales)
