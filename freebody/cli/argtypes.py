@@ -1,5 +1,7 @@
 """argparse value types shared by the subcommands: each rejects bad values with one line (exit 2);
-and :func:`writable_folder`, the check of an output folder before a command's work starts."""
+and :func:`writable_folder` and :func:`writable_file`, the checks of a command's output folder or
+file before its work starts (the rule of :func:`freebody.results.io.output_obstacle`: a regular
+file or a new path; checked again when each file is written)."""
 from __future__ import annotations
 
 import argparse
@@ -82,12 +84,14 @@ def save_interval(text: str) -> int | None:
 timeout_seconds = number(0.0, strict=True, maximum=MAX_TIMEOUT_S)
 
 
-def writable_folder(value, option: str) -> Path:
+def writable_folder(value, option: str, files=()) -> Path:
     """The output folder ``value`` of a command (``sweep --out``, ``inertia --compare --out``, the
     folder of ``baseline --to``), created with its parents and checked writable by creating (and
     removing) a one-byte file in it, so that a command fails before its work starts, not after.
     InputError (one line naming ``option``) when it is empty, exists and is not a folder, lies under
-    a file, or cannot be created or written (permissions, a read-only or full file system)."""
+    a file, or cannot be created or written (permissions, a read-only or full file system), or when
+    one of ``files`` (the names the command writes in it) is there as anything but a regular file
+    (:func:`freebody.results.io.check_output_file`)."""
     from ..errors import InputError, printable
 
     if value is None or not str(value):
@@ -108,4 +112,24 @@ def writable_folder(value, option: str) -> Path:
     finally:
         os.close(fd)
         os.unlink(probe)
+    from ..results.io import check_output_file
+
+    for name in files:
+        check_output_file(path / name, f"{where}: {printable(name)}")
+    return path
+
+
+def writable_file(value, option: str) -> Path:
+    """The output file ``value`` of a command (``compare --junit``, ``bench --out``, ``baseline
+    --to``), checked before the work starts: a regular file or a new path
+    (:func:`freebody.results.io.check_output_file`) in a folder that :func:`writable_folder` creates
+    and checks.  InputError, one line naming ``option`` and the path, otherwise."""
+    from ..errors import InputError, printable
+    from ..results.io import check_output_file
+
+    if value is None or not str(value):
+        raise InputError(f"{option}: empty; give the file to write")
+    where = f"{option} {printable(value)}"
+    path = check_output_file(value, where)
+    writable_folder(path.parent, f"{where}: its folder")
     return path

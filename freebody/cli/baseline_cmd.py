@@ -17,15 +17,13 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
-
     from ..errors import InputError
     from ..results.baseline import baseline_warnings, store_baseline
-    from .argtypes import writable_folder
+    from .argtypes import writable_file
 
     if not args.to:
         raise InputError("--to: empty; give the baseline file to write (e.g. --to baseline.json)")
-    writable_folder(Path(args.to).parent, f"--to {args.to}: its folder")  # can be written, before reading
+    writable_file(args.to, "--to")  # a regular file or a new path, its folder writable: before reading
     import sys
 
     base = store_baseline(args.dir, args.to, force=args.force, allow_no_ok_runs=args.allow_no_ok_runs)

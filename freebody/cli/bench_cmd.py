@@ -5,8 +5,6 @@ from __future__ import annotations
 ORDER = 90
 
 import json
-from pathlib import Path
-
 from .argtypes import nonnegative_int as _nonnegative_int, positive_int as _positive_int
 
 
@@ -39,13 +37,16 @@ def add_parser(sub) -> None:
 
 def run(args) -> int:
     from ..tools.bench import BenchConfig, format_text, run_bench
+    from ..errors import printable
     from ..results.io import write_json_atomic
+    from .argtypes import writable_file
 
+    out = None if args.out is None else writable_file(args.out, "--out")  # before the measurements
     config = BenchConfig.make(quick=args.quick, repeats=args.repeats, suite=not args.no_suite,
                               rss_steps=args.rss_steps, suite_repeats=args.suite_repeats)
     doc = run_bench(config, progress=not args.quiet)
-    if args.out:
-        write_json_atomic(Path(args.out), doc)
+    if out is not None:
+        write_json_atomic(out, doc, what=f"--out {printable(args.out)}")
     if args.json:
         print(json.dumps(doc, sort_keys=True, indent=1, allow_nan=False))
     else:

@@ -39,11 +39,13 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from ..errors import InputError
+    from ..errors import InputError, printable
     from ..results.compare import compare, load_side, resolve_tolerances
     from ..results.io import write_text_atomic
     from ..results.verdict import junit_xml, write_json
+    from .argtypes import writable_file
 
+    junit = None if args.junit is None else writable_file(args.junit, "--junit")  # before the work
     tols = resolve_tolerances(args.tolerances, args.rtol, args.atol)
     if args.against is not None:
         from ..envs.versions import split_sides
@@ -72,9 +74,9 @@ def run(args) -> int:
         if unknown:
             raise InputError(f"{option} {unknown[0]}: no run of either side has this {field}; known: "
                              f"{', '.join(sorted(str(k) for k in known))}")
-    if args.junit:
+    if junit is not None:
         try:
-            write_text_atomic(args.junit, junit_xml(result).decode("utf-8"))
+            write_text_atomic(junit, junit_xml(result).decode("utf-8"), what=f"--junit {printable(args.junit)}")
         except OSError as e:
             raise InputError(f"--junit {args.junit}: cannot write: {e.strerror or e}") from None
     print(write_json(result) if args.json else result.table(show_all=args.all))

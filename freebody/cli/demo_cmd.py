@@ -27,11 +27,10 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
-
     from ..tools.demo import log_to_stderr, run_demo
     from ..errors import InputError
     from ..run import select_engines
+    from .argtypes import writable_folder
 
     names = args.names or list(DEMO_NAMES)
     for n in names:
@@ -39,7 +38,7 @@ def run(args) -> int:
             raise InputError(f"demo: unknown demo {n!r}; known: {', '.join(DEMO_NAMES)}")
     engines = select_engines(args.engine) if args.engine else None
     log = None if args.quiet else log_to_stderr
-    out_dir = Path(args.out)
+    out_dir = writable_folder(args.out, "--out")  # before the work; each file is checked when written
     for n in dict.fromkeys(names):
         if log:
             log(f"demo {n} ...")

@@ -63,7 +63,8 @@ def run(args) -> int:
                       "particles" if args.compare else args.method, target.kind == "mesh",
                       force=args.force_large)
     if args.compare:
-        out_dir = writable_folder(args.out, "--out")  # before the work, so that none is lost
+        out_dir = writable_folder(args.out, "--out",  # before the work, so that none is lost
+                                  files=(f"inertia_{target.name}.png", f"inertia_{target.name}.json"))
         rows = compare(target, args.resolution or DEFAULT_COMPARE_MAX, seed=args.seed)
         print(report_exact(target))
         print()

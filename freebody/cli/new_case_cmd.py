@@ -42,8 +42,12 @@ def run(args) -> int:
 
 def _write_new(path: Path, text: str) -> None:
     """Create ``path`` with ``text``; InputError if something is already there (a file is never
-    overwritten); a partly written file is removed (a full disk)."""
+    overwritten; a folder, FIFO, device, socket or symbolic link there is named as such:
+    :func:`freebody.results.io.check_output_file`); a partly written file is removed (a full disk)."""
+    from ..results.io import check_output_file
+
     shown = printable(path)
+    check_output_file(path, f"--out {shown}")
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
     except FileExistsError:

@@ -26,13 +26,14 @@ def run(args) -> int:
     from ..errors import InputError
     from ..report.render import write_reports
     from ..results.document import load_results
-    from ..results.outdir import output_lock
+    from ..results.outdir import REPORTS, check_files, output_lock
 
     out_dir = Path(args.dir)
     if not out_dir.is_dir():
         raise InputError(f"{out_dir}: not a directory (expected a run directory holding results.json)")
     problems = {pb.name: pb for pb in (load_case(p) for p in args.case)}
     with output_lock(out_dir, option=""):  # not while a freebody run writes there
+        check_files(out_dir, REPORTS[:1] if args.markdown_only else REPORTS, str(out_dir))  # before the work
         doc = load_results(out_dir)
         for path in write_reports(out_dir, doc, problems, html=not args.markdown_only,
                                   baseline=args.baseline):

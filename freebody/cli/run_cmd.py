@@ -7,7 +7,7 @@ from ..errors import printable
 from ..input.casefile import bundled_case_paths, check_run_lengths, load_case
 from ..run import Status, expand, select_engines
 from ..run.suite import run_specs
-from ..results.outdir import out_folder, output_lock
+from ..results.outdir import REPORTS, check_files, out_folder, output_lock
 from ..report.summary import summary_table, summary_width, terminal_summary, where_to_look
 from .argtypes import (positive_float as _positive_float, positive_int as _positive_int,
                        save_interval as _save_interval, timeout_seconds as _timeout_seconds)
@@ -81,9 +81,10 @@ def run(args) -> int:
     check_run_lengths(problems, args.dt, args.duration)  # at most MAX_STEPS_PER_RUN steps a run
     engines = select_engines(args.engine, all_engines=args.all_engines)
     if args.baseline is not None:  # unusable: exit 2 now, not after the runs
+        from ..results.compare import check_unique_runs
         from ..results.document import load_results
 
-        load_results(args.baseline, "--baseline")
+        check_unique_runs(load_results(args.baseline, "--baseline"), f"--baseline {printable(args.baseline)}")
     from ..run.budget import check_run
     from ..run.suite import check_options, default_jobs
 
@@ -97,6 +98,7 @@ def run(args) -> int:
     specs = expand(problems, engines, args.integrator, args.dt, args.duration, args.precision,
                    sources=[str(n) for n in names], all_integrators=args.all_integrators)
     out_dir = out_folder(args.out)  # '' is bad input, not the current folder (before it is touched)
+    check_files(out_dir, () if args.no_report else REPORTS, f"--out {printable(out_dir)}")  # before the runs
     check_run(specs, jobs, force=args.force_large)
     with output_lock(out_dir):  # one freebody process writes DIR at a time, reports included
         doc, _ = run_specs(specs, out_dir, engines, progress=not args.quiet, save_every=args.save_every,

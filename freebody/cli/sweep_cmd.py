@@ -74,7 +74,8 @@ def run(args) -> int:
     engines = select_engines(args.engine)
     check_sweep(args.count, first_body_specs(settings, engines, args.integrator, args.precision),
                 force=args.force_large)
-    out_dir = writable_folder(args.out, "--out")  # before the runs, so that none is lost
+    # before the runs, so that none is lost (the worst cases' files are checked when written)
+    out_dir = writable_folder(args.out, "--out", files=("sweep.json", "sweep.txt"))
     out = sweep(settings, engines, args.integrator, out_dir, progress=not args.quiet,
                 precisions=args.precision, jobs=args.jobs or default_jobs())
     print(out.report)

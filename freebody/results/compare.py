@@ -273,10 +273,23 @@ def resolve_tolerances(path: str | Path | None = None, rtol: float | None = None
 # --- the comparison -------------------------------------------------------------------------------
 
 def _index(runs: list[dict]) -> dict[tuple, dict]:
-    out: dict[tuple, dict] = {}
-    for r in runs:
-        out.setdefault(run_key(r), r)  # a repeated run: the first one counts
-    return out
+    """The runs by :func:`run_key` (each key once: :func:`check_unique_runs` has refused repeats)."""
+    return {run_key(r): r for r in runs}
+
+
+def check_unique_runs(doc: dict, where: str) -> None:
+    """InputError (one line naming ``where``, the document) if two of its runs have one identity
+    (:func:`run_key`): compare would have to drop one of them without a word."""
+    first: dict[tuple, int] = {}
+    for i, r in enumerate(doc["runs"]):
+        j = first.setdefault(run_key(r), i)
+        if j != i:
+            k = run_key(r)
+            copies = sum(run_key(x) == k for x in doc["runs"])
+            raise InputError(f"{where}: runs[{j}] and runs[{i}]"
+                             + (f" (and {copies - 2} more)" if copies > 2 else "")
+                             + f" are one run twice: {printable(f'{k[0]} {k[1]}/{k[2]} {k[3]} dt={k[4]:g}')}"
+                             + " (case, engine, integrator, precision, dt); compare needs each run once")
 
 
 def engine_version_words(doc: dict) -> dict[str, str]:
@@ -467,6 +480,8 @@ def compare(baseline: dict, current: dict, tolerances: dict[str, Tolerance] | No
     from ..envs.versions import align_engine_names
 
     baseline, current = load_results(baseline, "baseline"), load_results(current, "current")
+    check_unique_runs(baseline, f"baseline {sources[0]}")
+    check_unique_runs(current, f"current {sources[1]}")
     tols = tolerances or default_tolerances()
     keep = _filter(engines, cases)
     # the filters apply to the names as run; then an engine's versions are matched across the sides

@@ -8,6 +8,12 @@ a plain ``open()`` would give it, 0o666 less the user's umask (the kernel applie
 the temporary file is created; ``tempfile.mkstemp`` would make it 0600).  A temporary file is
 named ``.<name>.<8 random characters>.tmp`` (:func:`is_temporary`).
 
+The one rule for what may be written over (:func:`output_obstacle`, checked by every command before
+its work starts and here again just before each rename): a regular file or a new path.  A folder,
+a FIFO, a device or a socket is refused, and so is a symbolic link, whatever it points to
+(``os.replace`` would replace the link itself, and writing to its target would write where the
+path does not say): one line naming the option and the path, exit 2 (:class:`OutputRefused`).
+
 JSON is written with sorted keys, numpy values as plain Python and non-finite numbers as null
 (:func:`freebody.numbers.finite_or_none`: JSON has no NaN or inf; a run's status says why a
 number is missing).
@@ -24,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import tolerances as tol
-from ..errors import InputError
+from ..errors import InputError, printable
 from ..numbers import finite_or_none
 
 _RANDOM = random.SystemRandom()  # temporary-file names; not the user's seeded global generator
@@ -64,6 +70,51 @@ def file_kind(mode: int) -> str:
         if test(mode):
             return kind
     return "a special file"
+
+
+class OutputRefused(InputError):
+    """A path freebody was asked to write that is no regular file nor a new path: the message is
+    ``"<what>: <reason>"`` (what: the option and the path, e.g. ``--junit out.xml``)."""
+
+    def __init__(self, what: str, reason: str):
+        super().__init__(f"{what}: {reason}")
+        self.reason = reason
+
+
+def output_obstacle(path: str | Path) -> str | None:
+    """What is at ``path`` that freebody will not write over ("a FIFO (named pipe)", "a symbolic
+    link (to a regular file)", ...), or None when it may write there: nothing is there, or a regular
+    file (replaced atomically).  Checked with ``lstat``: the last part of the path must not be a
+    symbolic link (the folders on the way to it may be).  A path that cannot be checked (a part of
+    it is a file, no permission) is None here: writing it fails with the system's reason."""
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return None
+    if stat.S_ISREG(mode):
+        return None
+    if not stat.S_ISLNK(mode):
+        return file_kind(mode)
+    try:
+        target = os.stat(path).st_mode
+        to = "a regular file" if stat.S_ISREG(target) else file_kind(target)
+    except OSError:
+        to = "nothing: a dangling link"
+    return f"a symbolic link (to {to})"
+
+
+def check_output_file(path: str | Path, what: str | None = None) -> Path:
+    """``path`` as a Path when freebody may write it (:func:`output_obstacle`), else
+    :class:`OutputRefused` (one line ``"<what>: <reason>"``; ``what`` defaults to the path)."""
+    if path is None or not str(path):
+        raise OutputRefused(what or "output file", "empty; give a file's path")
+    kind = output_obstacle(path)
+    if kind is not None:
+        raise OutputRefused(what or printable(path),
+                            f"is {kind}, not a regular file; freebody writes only to a regular file or a "
+                            f"new path (never over a folder, FIFO, device or socket, nor through a "
+                            f"symbolic link)")
+    return Path(path)
 
 
 def make_folder(path: Path, where: str) -> None:
@@ -160,18 +211,25 @@ def is_temporary(name: str) -> bool:
     return _TEMPORARY.fullmatch(name) is not None
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write text (UTF-8) atomically."""
-    _write_atomic(path, lambda f: f.write(text.encode("utf-8")))
+def write_text_atomic(path: Path, text: str, *, what: str | None = None) -> None:
+    """Write text (UTF-8) atomically.  ``what`` (e.g. "--junit FILE") names ``path`` if it is
+    refused (:func:`check_output_file`)."""
+    _write_atomic(path, lambda f: f.write(text.encode("utf-8")), what=what)
 
 
-def write_json_atomic(path: Path, data: dict, *, before_replace=None) -> None:
+def write_bytes_atomic(path: Path, data: bytes, *, what: str | None = None) -> None:
+    """Write bytes atomically (``what`` as for :func:`write_text_atomic`)."""
+    _write_atomic(path, lambda f: f.write(data), what=what)
+
+
+def write_json_atomic(path: Path, data: dict, *, before_replace=None, what: str | None = None) -> None:
     """Write JSON (sorted keys, indent 1, non-finite -> null, a final newline) atomically.
 
     before_replace : called once the temporary file is complete on the disk, just before it is
-        renamed over ``path`` (the fault-injection point of :mod:`freebody.results.outdir`)."""
+        renamed over ``path`` (the fault-injection point of :mod:`freebody.results.outdir`).
+    what : names ``path`` if it is refused (as for :func:`write_text_atomic`)."""
     text = json.dumps(json_safe(data), sort_keys=True, indent=1, allow_nan=False) + "\n"
-    _write_atomic(path, lambda f: f.write(text.encode("utf-8")), before_replace)
+    _write_atomic(path, lambda f: f.write(text.encode("utf-8")), before_replace, what=what)
 
 
 def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True) -> None:
@@ -179,11 +237,12 @@ def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True) -> None:
     _write_atomic(path, lambda f: (np.savez_compressed if compressed else np.savez)(f, **arrays))
 
 
-def _write_atomic(path: Path, write, before_replace=None) -> None:
-    """Create the parent folders, ``write(binary file)`` to a new temporary file beside ``path``,
-    fsync it, call ``before_replace()`` if given, and rename it to ``path``; the temporary file is
-    removed if anything fails."""
-    path = Path(path)
+def _write_atomic(path: Path, write, before_replace=None, what: str | None = None) -> None:
+    """Check ``path`` (:func:`check_output_file`), create the parent folders, ``write(binary file)``
+    to a new temporary file beside ``path``, fsync it, call ``before_replace()`` if given, check
+    ``path`` again (it may have changed meanwhile) and rename the temporary file to ``path``; the
+    temporary file is removed if anything fails."""
+    path = check_output_file(path, what)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = _new_temporary(path)
     try:
@@ -193,6 +252,7 @@ def _write_atomic(path: Path, write, before_replace=None) -> None:
             os.fsync(f.fileno())
         if before_replace is not None:
             before_replace()
+        check_output_file(path, what)
         os.replace(tmp, path)
     except BaseException as e:
         if os.path.exists(tmp):

@@ -48,13 +48,14 @@ import threading
 from pathlib import Path, PurePosixPath
 
 from ..errors import InputError
-from .io import is_temporary, make_folder, write_json_atomic, write_text_atomic
+from .io import is_temporary, make_folder, output_obstacle, write_json_atomic, write_text_atomic
 
 RESULTS = "results.json"
 PREVIOUS = "results.previous.json"
 TRAJECTORIES = "trajectories"
 LOCK = ".freebody.lock"
 OWNED = ".freebody-owned.json"
+REPORTS = ("report.md", "report.html")
 FAULT_ENV = "FREEBODY_FAULT"
 FAULT_POINTS = ("after-trajectories", "before-publish", "after-publish")
 # the file names of trajectory files (results.document.trajectory_filename): readable part, hash
@@ -96,6 +97,7 @@ def output_lock(out_dir, option: str = "--out"):
     out_dir = out_folder(out_dir)
     where = f"{option} {out_dir}" if option else str(out_dir)
     make_folder(out_dir, where)
+    check_files(out_dir, [LOCK], where)  # its pid is written there: never a device, a link, ...
     key = os.path.realpath(out_dir / LOCK)
     with _held_guard:
         entry = _held.get(key)
@@ -124,10 +126,15 @@ def _lock(key: str, where: str, option: str) -> int:
         import fcntl
     except ImportError:  # not POSIX: no lock
         fcntl = None
-    try:
-        fd = os.open(key, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o666)
+    try:  # not following a link, not blocking on a FIFO: both put there since the check
+        fd = os.open(key, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0)
+                     | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0), 0o666)
     except OSError as e:
         raise InputError(f"{where}: cannot write there: {e.strerror or e}") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise InputError(f"{where}: {LOCK} is not a regular file; freebody writes {LOCK} there, so "
+                         f"move it away or choose another folder")
     if fcntl is None:
         return fd
     try:
@@ -154,8 +161,8 @@ class OutputFolder:
 
     def __init__(self, out_dir):
         self.path = out_folder(out_dir)
-        for name in (RESULTS, PREVIOUS, OWNED):  # before any work: never replaced, never read
-            _check_regular(self.path / name)
+        # before any work: never replaced, never read
+        check_files(self.path, (RESULTS, PREVIOUS, OWNED), f"--out {self.path}")
         self.previous_text, self.previous = _read_document(self.path / RESULTS)
         _, self.kept = _read_document(self.path / PREVIOUS)
         if _complete(self.previous) and self.kept is not None:
@@ -245,16 +252,16 @@ class OutputFolder:
                                                        "(owned) and the last trajectory folder number"})
 
 
-def _check_regular(path: Path) -> None:
-    """InputError if ``path`` exists and is not a regular file (a folder, a FIFO, a device): freebody
+def check_files(folder: Path, names, where: str) -> None:
+    """InputError naming ``where`` (e.g. "--out DIR") if one of the files ``names`` that freebody
+    writes in ``folder`` is there as anything but a regular file (the rule of
+    :func:`.io.output_obstacle`: a folder, a FIFO, a device, a socket, a symbolic link): freebody
     neither reads it (a FIFO would block) nor replaces it."""
-    try:
-        mode = os.stat(path).st_mode
-    except OSError:
-        return
-    if not stat.S_ISREG(mode):
-        raise InputError(f"--out {path.parent}: {path.name} is not a regular file; freebody writes "
-                         f"{path.name} there, so move it away or choose another --out")
+    for name in names:
+        kind = output_obstacle(Path(folder) / name)
+        if kind is not None:
+            raise InputError(f"{where}: {name} is not a regular file ({kind}); freebody writes "
+                             f"{name} there, so move it away or choose another folder")
 
 
 def _read_document(path: Path) -> tuple[str | None, dict | None]:

@@ -41,6 +41,7 @@ from ..reference_impl.integrators import INTEGRATORS, simulate
 from ..reference_impl.problem import Body, Problem
 from ..reference_impl.rotations import geodesic_angle, matrix_from_quat
 from ..reference_impl.truth import truth_trajectory
+from ..results.io import check_output_file, write_text_atomic
 
 DEMOS = ("integrators", "quiz", "dzhanibekov")
 # The pages' text: one str.format template per demo, ``templates/<demo>.md`` beside this module
@@ -146,6 +147,8 @@ def _figure(nrows: int = 1, ncols: int = 1, size=SLIDE_SIZE_IN, **kw):
 def _save(fig, out_dir: Path, stem: str) -> Path:
     """Save ``stem``.png and ``stem``.svg (reproducible: no dates in the metadata); returns the stem path."""
     base = Path(out_dir) / stem
+    for suffix in (".png", ".svg"):  # the rule for every file freebody writes (results.io)
+        check_output_file(base.with_suffix(suffix))
     fig.savefig(base.with_suffix(".png"), dpi=PNG_DPI, metadata={"Software": None})
     fig.savefig(base.with_suffix(".svg"), metadata={"Date": None})
     return base
@@ -170,7 +173,7 @@ def _rc():
 
 
 def _write_page(path: Path, text: str) -> Path:
-    path.write_text(text.strip() + "\n")
+    write_text_atomic(path, text.strip() + "\n")
     return path
 
 
@@ -831,6 +834,7 @@ def _draw_box_gif(problem: Problem, truth: Trajectory, path: Path, frames: int) 
     colors = ["#d62728", "#d62728", "#1f77b4", "#1f77b4", "#2ca02c", "#2ca02c"]
     idx = np.linspace(0, len(truth) - 1, max(frames, 1)).round().astype(int)
     writer = PillowWriter(fps=GIF_FPS)
+    check_output_file(path)  # the rule for every file freebody writes (results.io)
     with writer.saving(fig, str(path), dpi=GIF_DPI):
         for k in idx:
             ax.cla()

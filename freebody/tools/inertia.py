@@ -302,5 +302,11 @@ def _plot(t: Target, rows: list[dict], path: Path) -> None:
         ax.grid(True, which="both", alpha=0.3)
     fig.suptitle(f"{t.label.split(';')[0]}\napproximations vs the exact result (N: cells along the "
                  "longest bounding-box side; polyhedron: segments around the axis)", fontsize=10)
-    fig.savefig(path, dpi=110)
+    from io import BytesIO
+
+    from ..results.io import write_bytes_atomic
+
+    buf = BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
+    write_bytes_atomic(path, buf.getvalue())  # checked as every file freebody writes (results.io)
