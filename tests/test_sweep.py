@@ -70,7 +70,7 @@ def test_same_seed_gives_identical_sweep_json(sweep_engine, tmp_path):
     second = sweep(SMALL, engines, out_dir=tmp_path / "b", progress=False)
     a, b = load_sweep(tmp_path / "a"), load_sweep(tmp_path / "b")
     assert _without_wall_times(a) == _without_wall_times(b)
-    assert a["seed"] == 7 and a["count"] == 3 and a["schema_version"] == 1
+    assert a["seed"] == 7 and a["count"] == 3 and a["schema_version"] == 2 and a["incomplete"] is False
     assert {r["engine"] for r in a["runs"]} == set(engines)
     assert all(r["status"] == "ok" for r in a["runs"]), [r["message"] for r in a["runs"]]
     assert first.report.splitlines()[2:] != [] and second.document["summary"]

@@ -15,7 +15,8 @@ from fake_engines.crashing_adapter import REGISTRY_ENTRY as CRASHER_ENTRY
 from freebody.adapters import base
 from freebody.cli import main
 from freebody.run import expand, judge
-from freebody.tools.sweep import SweepSettings, random_bodies, sweep
+from freebody.errors import InputError
+from freebody.tools.sweep import SweepSettings, load_sweep, random_bodies, sweep
 from test_interrupt import (EXIT_BUDGET_S, WITH_CRASHER, _children, _sigint_as_at_a_terminal,
                             _wait_for_finished_runs, _wait_gone)
 
@@ -113,22 +114,62 @@ def test_progress_counts_runs_on_stderr(tmp_path, capsys):
     assert progress and progress[-1].startswith("[4/4 runs]") and "4 ok" in progress[-1], err
 
 
-@pytest.mark.skipif(not hasattr(signal, "SIGINT"), reason="needs signals")
-def test_ctrl_c_stops_the_workers_writes_nothing_exit_130(tmp_path):
-    argv = ["sweep", "--count", "2", "--engine", "reference", "--engine", "crasher", "--integrator",
-            "reference:euler-quat", "--integrator", "crasher:sleep", "--dt", "5", "--duration", "1000",
-            "--jobs", "2", "--out", str(tmp_path)]
-    proc = subprocess.Popen([sys.executable, "-c", WITH_CRASHER, *argv], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, preexec_fn=_sigint_as_at_a_terminal)
+INTERRUPTED_SWEEP = ["sweep", "--count", "2", "--engine", "reference", "--engine", "crasher", "--integrator",
+                     "reference:euler-quat", "--integrator", "crasher:sleep", "--dt", "5", "--duration", "1000",
+                     "--jobs", "2"]
+
+
+def _sweep_files(out) -> dict:
+    return {p.relative_to(out).as_posix(): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.skipif(not hasattr(signal, "SIGTERM"), reason="needs signals")
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_an_interrupt_keeps_the_finished_bodies_and_the_previous_complete_sweep(tmp_path, signum, capsys):
+    """Ctrl-C or SIGTERM with runs finished: the workers are stopped, exit 128 + the signal; the
+    finished runs are written as a sweep marked incomplete in OUT/interrupted/, and the complete
+    sweep already in OUT is left byte for byte.  A complete sweep then removes the interrupted one."""
+    out = tmp_path / "out"
+    assert main(["sweep", "--count", "1", "--engine", "reference", "--integrator", "euler-quat",
+                 "--duration", "0.05", "--quiet", "--out", str(out)]) == 0
+    before = _sweep_files(out)
+    proc = subprocess.Popen([sys.executable, "-c", WITH_CRASHER, *INTERRUPTED_SWEEP, "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_sigint_as_at_a_terminal)
     try:
-        _wait_for_finished_runs(proc, 1)
+        _wait_for_finished_runs(proc, 2)  # the two reference runs; the crasher's sleep for ever
         workers = _children(proc.pid)
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signum)
         _, err = proc.communicate(timeout=EXIT_BUDGET_S)
     finally:
         proc.kill()
-    assert proc.returncode == 130, err
+    assert proc.returncode == 128 + signum, err
     assert "Traceback" not in err, err
-    assert "of 4 runs finished; nothing written" in err, err
-    assert not (tmp_path / "sweep.json").exists()
+    assert f"2 of 4 runs finished; kept in {out / 'interrupted' / 'sweep.json'} (marked incomplete)" in err, err
+    assert _sweep_files(out) == {**before, **{k: v for k, v in _sweep_files(out).items()
+                                              if k.startswith("interrupted/")}}  # OUT's own files unchanged
+    doc = load_sweep(out / "interrupted")
+    assert doc["incomplete"] is True and doc["schema_version"] == 2
+    assert [(r["case"], r["engine"], r["status"]) for r in doc["runs"]] == [
+        ("sweep_s0_0000", "reference", "ok"), ("sweep_s0_0001", "reference", "ok")]
+    assert [b["case"] for b in doc["bodies"]] == ["sweep_s0_0000", "sweep_s0_0001"]
+    assert "INCOMPLETE" in (out / "interrupted" / "sweep.txt").read_text()
     assert workers and _wait_gone(workers, EXIT_BUDGET_S) == [], "worker processes left running"
+    (out / "interrupted" / "mine.txt").write_text("a user's file")
+    assert main(["sweep", "--count", "1", "--engine", "reference", "--integrator", "euler-quat",
+                 "--duration", "0.05", "--quiet", "--out", str(out)]) == 0
+    assert sorted(p.relative_to(out).as_posix() for p in (out / "interrupted").rglob("*")) == ["interrupted/mine.txt"]
+
+
+def test_a_schema_1_sweep_reads_as_complete(tmp_path):
+    out = tmp_path / "out"
+    sweep(SweepSettings(seed=1, count=1, duration=0.05), ["reference"], ["euler-quat"], out, progress=False)
+    doc = json.loads((out / "sweep.json").read_text())
+    del doc["incomplete"]
+    doc["schema_version"] = 1
+    (out / "sweep.json").write_text(json.dumps(doc))
+    assert load_sweep(out)["incomplete"] is False
+    doc["schema_version"] = 3
+    (out / "sweep.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="schema_version: expected 2"):
+        load_sweep(out)

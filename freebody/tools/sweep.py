@@ -21,11 +21,13 @@ runs bit for bit: ``freebody run worst/<case>.toml --engine E --integrator I``.
 """
 from __future__ import annotations
 
+import json
 import math
+import re
 import sys
 import time
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -45,7 +47,8 @@ from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_REL, ENERGY_ERROR_MAX_REL,
 from ..run.progress import ProgressDisplay
 from ..report.summary import run_label
 
-SWEEP_SCHEMA_VERSION = 1
+SWEEP_SCHEMA_VERSION = 2  # 2: "incomplete" (an interrupted sweep's finished runs); 1 reads as complete
+READABLE_SWEEP_SCHEMAS = (1, 2)
 
 # The metrics a sweep reduces (maxima over each run, see freebody.run.metrics), with a short label.
 SWEEP_METRICS = {
@@ -248,7 +251,7 @@ def first_body_specs(settings: SweepSettings, engines: list[str], integrators: l
 
 def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[str] | None = None,
                progress: bool = True, precisions: list[str] | None = None, *, jobs: int = 1,
-               isolate: bool = True) -> list[dict]:
+               isolate: bool = True, on_interrupt: Callable[[list[dict]], str] | None = None) -> list[dict]:
     """Run every body on every selected engine and integrator at the sweep's time steps.
 
     The runs go through :func:`freebody.run.suite.run_specs`, the executor of ``freebody run``:
@@ -260,6 +263,9 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
     is that of the same run alone.  The numbers do not depend on ``jobs``.
     Returns the runs as results.json ``runs`` entries (in body, dt, engine, integrator order), without
     the per-run ``engine_settings`` (reproduce a run with ``freebody run`` to see them).
+    On Ctrl-C, SIGTERM or SIGHUP the workers are ended, ``on_interrupt`` is called (signals held
+    off) with the runs finished so far, in the same order, and says what it kept ("nothing
+    written" without it); the interrupt is then re-raised.
     """
     from ..run import interrupts
     from ..run.suite import check_options, run_specs
@@ -267,30 +273,44 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
     check_options(jobs, None, None, "local", None, isolate, engines)  # before any batch is stepped
     extra = {"precisions": precisions} if precisions else {}
     specs = expand([b.problem for b in bodies], engines, integrators, None, None, **extra)
-    batched = _batched_outputs(specs, progress)
-    simulated = {i: batched[id(s)] for i, s in enumerate(specs) if id(s) in batched}
     bar = ProgressDisplay(len(specs), "runs", enabled=progress, every=len(specs) // 10)
     counts = {s: 0 for s in STATUSES}
+    finished: list = []
 
     def shown(out) -> None:
         r = out.result
+        finished.append(out)
         counts[r.status] += 1
         bar.update(", ".join(f"{n} {s}" for s, n in counts.items() if n)
                    + f"  ({r.case} {r.engine}/{r.integrator})")
 
     try:
-        _, outputs = run_specs(specs, None, engines, progress=False, on_result=shown, jobs=jobs,
-                               isolate=isolate, simulated=simulated)
+        with interrupts.signals_interrupt():  # SIGTERM, SIGHUP while the batches step, too
+            batched = _batched_outputs(specs, progress)
+            simulated = {i: batched[id(s)] for i, s in enumerate(specs) if id(s) in batched}
+            _, outputs = run_specs(specs, None, engines, progress=False, on_result=shown, jobs=jobs,
+                                   isolate=isolate, simulated=simulated)
     except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: the CLI exits with its code
-        bar.note(f"{interrupts.describe(e)}: {bar.done} of {bar.total} runs finished; nothing written")
+        with interrupts.deferred():
+            order = {s.key: i for i, s in enumerate(specs)}
+            done = sorted(finished, key=lambda o: order.get(_key(o.result), len(specs)))
+            kept = on_interrupt([_sweep_run(o) for o in done]) if on_interrupt and done else "nothing written"
+            bar.note(f"{interrupts.describe(e)}: {bar.done} of {bar.total} runs finished; {kept}")
         raise
-    runs = []
-    for out in outputs:
-        run = out.result.to_json()
-        run.pop("engine_settings", None)
-        run.pop("trajectory", None)
-        runs.append(run)
-    return runs
+    return [_sweep_run(out) for out in outputs]
+
+
+def _key(result) -> tuple:
+    return (result.case, result.engine, result.integrator, result.precision, result.dt)
+
+
+def _sweep_run(out) -> dict:
+    """A finished run as a sweep.json ``runs`` entry (its results.json entry without
+    ``engine_settings`` and ``trajectory``)."""
+    run = out.result.to_json()
+    run.pop("engine_settings", None)
+    run.pop("trajectory", None)
+    return run
 
 
 def _batch_classes(engines, progress: bool) -> dict[str, type]:
@@ -421,9 +441,13 @@ def reproduce_command(worst: dict, path: str) -> str:
 
 @dataclass(frozen=True)
 class SweepOutcome:
+    """A sweep's document (sweep.json), its report (sweep.txt) and wall time, s; ``worst_texts``:
+    case name -> the case-file text of each worst case (worst/<name>.toml)."""
+
     document: dict
     report: str
     wall_time_s: float
+    worst_texts: dict = field(default_factory=dict)
 
 
 def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | None = None,
@@ -432,25 +456,54 @@ def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | 
           isolate: bool = True) -> SweepOutcome:
     """Draw the bodies, run them (``jobs`` worker processes, see :func:`run_bodies`), reduce; write
     sweep.json, sweep.txt and worst/*.toml to out_dir.  The documents do not depend on ``jobs``
-    (apart from the wall times)."""
+    (apart from the wall times).
+
+    Interrupted (Ctrl-C, SIGTERM, SIGHUP) with runs finished, the sweep of those runs (their
+    bodies, ``"incomplete": true``) is written to ``out_dir/interrupted/`` and the interrupt
+    re-raised: a complete sweep in out_dir is never touched by an interrupted one.  A complete
+    sweep removes the interrupted one's files (those its sweep.json names, nothing else)."""
     from ..run.suite import engine_versions
 
     t0 = time.perf_counter()
     bodies = random_bodies(settings)
     if on_bodies:
         on_bodies(bodies)
+
+    def keep(runs: list[dict]) -> str:
+        if out_dir is None:
+            return "nothing written (no output folder)"
+        folder = Path(out_dir) / INTERRUPTED
+        _clear_interrupted(Path(out_dir))
+        made = set(r["case"] for r in runs)
+        _write(_outcome(settings, engines, [b for b in bodies if b.problem.name in made], runs,
+                        time.perf_counter() - t0, engine_versions, folder, incomplete=True), folder)
+        return f"kept in {folder / 'sweep.json'} (marked incomplete)"
+
     runs = run_bodies(bodies, engines, integrators, progress=progress, precisions=precisions, jobs=jobs,
-                      isolate=isolate)
+                      isolate=isolate, on_interrupt=keep)
+    outcome = _outcome(settings, engines, bodies, runs, time.perf_counter() - t0, engine_versions, out_dir)
+    if out_dir is not None:
+        _write(outcome, Path(out_dir))
+        _clear_interrupted(Path(out_dir))
+    return outcome
+
+
+INTERRUPTED = "interrupted"  # the folder (in the output folder) of an interrupted sweep
+
+
+def _outcome(settings: SweepSettings, engines: list[str], bodies: list[SweepBody], runs: list[dict],
+             wall: float, versions, out_dir, incomplete: bool = False) -> SweepOutcome:
+    """The sweep document of ``runs`` (of ``bodies``) and its report; the worst cases' texts in
+    ``outcome.document`` are attached as ``_texts`` (popped by :func:`_write`)."""
     summary = summarize_runs(runs)
     worst = worst_cases(summary, runs)
-    texts = {b.problem.name: b.toml for b in bodies}
     for w in worst:
         w["file"] = f"worst/{w['case']}.toml"
         w["command"] = reproduce_command(w, w["file"])  # relative to the sweep's directory
-    wall = time.perf_counter() - t0
     doc = document_header(
-        SWEEP_SCHEMA_VERSION, engine_versions(engines),
+        SWEEP_SCHEMA_VERSION, versions(engines),
         kind="freebody sweep",
+        incomplete=incomplete,
         seed=settings.seed,
         count=settings.count,
         settings=settings.as_dict(),
@@ -461,13 +514,50 @@ def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | 
         wall_time_s=wall,
     )
     report = format_report(doc, str(out_dir) if out_dir is not None else None)
-    if out_dir is not None:
-        out_dir = Path(out_dir)
-        for name in sorted({w["case"] for w in worst}):
-            write_text_atomic(out_dir / "worst" / f"{name}.toml", texts[name])
-        write_json_atomic(out_dir / "sweep.json", doc)
-        write_text_atomic(out_dir / "sweep.txt", report + "\n")
-    return SweepOutcome(doc, report, wall)
+    texts = {b.problem.name: b.toml for b in bodies}
+    return SweepOutcome(doc, report, wall, {w["case"]: texts[w["case"]] for w in worst})
+
+
+def _write(outcome: SweepOutcome, out_dir: Path) -> None:
+    """worst/*.toml, then sweep.json and sweep.txt, each atomically."""
+    for name in sorted(outcome.worst_texts):
+        write_text_atomic(out_dir / "worst" / f"{name}.toml", outcome.worst_texts[name])
+    write_json_atomic(out_dir / "sweep.json", outcome.document)
+    write_text_atomic(out_dir / "sweep.txt", outcome.report + "\n")
+
+
+def _clear_interrupted(out_dir: Path) -> None:
+    """Remove the interrupted sweep in ``out_dir/interrupted/``: sweep.txt, the worst-case files
+    its sweep.json names, sweep.json last, then the folders if that empties them.  Only if its
+    sweep.json is an incomplete freebody sweep; a file of anyone else there is left alone."""
+    folder = out_dir / INTERRUPTED
+    try:
+        doc = json.loads((folder / "sweep.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return
+    if not (isinstance(doc, dict) and doc.get("kind") == "freebody sweep" and doc.get("incomplete") is True):
+        return
+    names = {c.get("file") for c in doc.get("worst_cases") or [] if isinstance(c, dict)}
+    for name in sorted(n for n in names if isinstance(n, str) and _WORST_FILE.fullmatch(n)):
+        _unlink(folder / name)
+    _unlink(folder / "sweep.txt")
+    _unlink(folder / "sweep.json")
+    for empty in (folder / "worst", folder):
+        try:
+            empty.rmdir()
+        except OSError:  # not empty (a user's file), or gone
+            pass
+
+
+_WORST_FILE = re.compile(r"worst/sweep_s\d+_\d+\.toml")  # the names freebody gives worst-case files
+
+
+def _unlink(path: Path) -> None:
+    try:
+        if path.is_file() and not path.is_symlink():
+            path.unlink()
+    except OSError:
+        pass
 
 
 def _body_record(b: SweepBody) -> dict:
@@ -493,6 +583,9 @@ def format_report(doc: dict, out_dir: str | None) -> str:
              f"gravity {s['gravity']}; closed-form truth",
              f"{len(runs)} runs: " + ", ".join(f"{n} {st}" for st, n in counts.items())
              + f" ({doc['wall_time_s']:.1f} s)"]
+    if doc.get("incomplete"):
+        lines.append(f"INCOMPLETE: interrupted; only the {len(runs)} finished runs, of {len(doc['bodies'])} of "
+                     f"the {s['count']} bodies, are counted below")
     summary = doc["summary"]
     w = max([len(k) for k in summary] + [len("engine/integrator dt")])
     for key, title in SWEEP_METRICS.items():
@@ -527,14 +620,22 @@ def format_report(doc: dict, out_dir: str | None) -> str:
 
 
 def load_sweep(path: str | Path) -> dict:
-    """Read a sweep.json (or a directory holding one)."""
+    """Read a sweep.json (or a directory holding one), in the newest schema: a schema-1 document
+    (before interrupted sweeps were kept) reads as complete (``"incomplete": false``)."""
     from ..errors import InputError
 
     p = Path(path)
     if p.is_dir():
         p = p / "sweep.json"
     doc = read_json(p, str(p))
-    if not isinstance(doc, dict) or doc.get("schema_version") != SWEEP_SCHEMA_VERSION:
-        raise InputError(f"{p}: schema_version: expected {SWEEP_SCHEMA_VERSION}; re-run freebody sweep "
-                         "with this version")
+    version = doc.get("schema_version") if isinstance(doc, dict) else None
+    if version not in READABLE_SWEEP_SCHEMAS:
+        raise InputError(f"{p}: schema_version: expected {SWEEP_SCHEMA_VERSION} (or an earlier one, "
+                         f"{', '.join(map(str, READABLE_SWEEP_SCHEMAS[:-1]))}), got {version!r}; re-run "
+                         f"freebody sweep with this version")
+    doc = dict(doc)
+    doc.setdefault("incomplete", False)  # schema 1
+    if not isinstance(doc["incomplete"], bool):
+        raise InputError(f"{p}: incomplete: must be true or false, got {doc['incomplete']!r}")
+    doc["schema_version"] = SWEEP_SCHEMA_VERSION
     return doc
