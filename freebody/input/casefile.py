@@ -71,6 +71,10 @@ the first step; it is not listed.)"""
 # A case's name names its runs in tables, progress lines and file names: at most this many
 # characters, printable (no control characters or terminal escape sequences).
 CASE_NAME_MAX_CHARS = 100
+# Time steps one case may list: each is a run per engine, integrator and precision, so 1000 is
+# already some 10^5 runs, beyond any convergence study (tens of steps); a longer list (a file of
+# two million, 12 MB) is refused before it is parsed number by number, instead of working for minutes.
+MAX_TIME_STEPS_PER_CASE = 1000
 
 
 class CaseWarning(UserWarning):
@@ -449,6 +453,9 @@ def parse_case(data: dict, source: str = "<case>") -> Problem:
         dts_list = dts_raw if isinstance(dts_raw, list) else [dts_raw]
         if not dts_list:
             c.fail("dt", "must list at least one time step")
+        if len(dts_list) > MAX_TIME_STEPS_PER_CASE:
+            c.fail("dt", f"lists {len(dts_list)} time steps; a case lists at most {MAX_TIME_STEPS_PER_CASE} "
+                         f"(MAX_TIME_STEPS_PER_CASE: each one is a run per engine and integrator)")
         dts = tuple(c.number(d, "dt", positive=True, tiny_ok=True) for d in dts_list)
 
     if "duration" in data and "duration_steps" in data:
