@@ -602,6 +602,16 @@ def plugin_import_timeout() -> float:
     return value if value > 0 else PLUGIN_IMPORT_TIMEOUT_S
 
 
+def is_plugin(name: str) -> bool:
+    """Whether an engine is a third party's (an entry point of :data:`ENTRY_POINT_GROUP`), not a
+    built-in adapter (:data:`ENGINES`): its module is imported only after :func:`probe_plugin`,
+    and only by what needs its adapter class (its runs, ``conventions``)."""
+    try:
+        return base_engine(name) not in ENGINES
+    except UnknownEngine:
+        return False
+
+
 def plugin_import_failures() -> dict[str, str]:
     """The plug-in modules whose import failed in this process's probes: module -> why (handed
     to worker processes by :func:`seed_plugin_probes`, so that none waits for them again)."""
@@ -666,7 +676,7 @@ def load_adapter(name: str) -> type[Adapter]:
     # entry-point scan (about 14 ms a call, and the judge asks per run)
     entry = ENGINES[name] if name in ENGINES else registry()[name]
     import_name, module, cls, hint = entry.import_name, entry.module, entry.cls, entry.install_hint
-    if name not in ENGINES and importlib.util.find_spec(import_name) is not None:
+    if name not in ENGINES and importlib.util.find_spec(import_name) is not None:  # is_plugin
         probe_plugin(name, entry)  # a missing plug-in is EngineMissing below, as a built-in
     try:
         mod = importlib.import_module(module)

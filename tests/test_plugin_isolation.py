@@ -150,3 +150,15 @@ def test_conventions_of_a_hanging_plugin_says_why(tmp_path):
     proc, _ = freebody(site, "conventions", "--engine", "advhang", "--no-checks", limit=PLUGIN_IMPORT_LIMIT_S)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr
     assert f"import did not finish within {PLUGIN_IMPORT_LIMIT_S} s" in proc.stdout
+
+
+def test_report_never_imports_a_plugin(tmp_path):
+    """A results folder with a hanging plug-in's runs reports at once (default import limit)."""
+    site = make_plugin(tmp_path / "site", "advhang", HANG)
+    proc, _ = freebody(site, "run", *SMALL_RUN, "--engine", "advhang", "--engine", "reference",
+                       "--out", tmp_path / "out", limit=1)
+    assert proc.returncode == 1, proc.stderr
+    proc, wall = freebody(site, "report", tmp_path / "out")
+    assert proc.returncode == 0, proc.stderr
+    assert "a plug-in, not imported by the report" in (tmp_path / "out" / "report.md").read_text()
+    assert wall < STALL_S

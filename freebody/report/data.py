@@ -465,11 +465,15 @@ CONVENTIONS_NOTE = ("Each engine's conventions and the traps its adapter handles
 def engine_conventions(doc: dict) -> list[tuple[str, str, str]]:
     """(engine, convention, text) for every engine of the document whose adapter loads here (the
     adapter's ``conventions``), else one row saying why not."""
-    from ..adapters.base import base_engine, is_available, load_adapter, split_engine_name
+    from ..adapters.base import base_engine, is_available, is_plugin, load_adapter, split_engine_name
     from ..adapters.capture import capture_output
 
     out = []
     for engine, _, _ in engine_versions(doc):
+        if is_plugin(engine):  # a third party's module: the report imports none (its import may hang)
+            out.append((engine, "-", f"a plug-in, not imported by the report: see freebody conventions "
+                                     f"--engine {engine}"))
+            continue
         try:
             if split_engine_name(engine)[1] or not is_available(engine):
                 raise LookupError
