@@ -46,9 +46,10 @@ BLOW_UP_ENERGY_FACTOR = 10.0
 # An ok run whose largest |1 - |q_k|| (the quaternions as the engine handed them out, before the
 # harness normalises anything: run/metrics "quaternion_norm_error_max") is beyond this, per
 # precision, returns non-unit quaternions (a finding, report/findings.py "non-unit-quaternion").
-# Measured on the default suite's saved samples (1551 runs): float64 at most 1.2e-15 (MuJoCo; the
-# reference maps, PyBullet, DART, Drake's q / |q| 3.3e-16), float32 at most 3.2e-7 (SAPIEN tgs,
-# dzhanibekov_rotated, 1e4 steps; MJX float32 1.6e-7), a few ulps of a normalised q.  1e-12 and
+# Measured on every sample of dzhanibekov(_rotated), high_spin_dt_10ms, thin_rod, long_horizon and
+# gazebo_boxes_simple (243 runs): float64 at most 1.2e-15 (MuJoCo RK4; PyBullet 4.4e-16, the reference
+# maps, DART and Drake's q / |q| 3.3e-16), float32 at most 3.5e-7 (SAPIEN pgs, dzhanibekov_rotated,
+# 1e4 steps; MJX float32 1.6e-7 on the default suite's saved samples), a few ulps of a unit q.  1e-12 and
 # 1e-5 leave ~1e3x and ~30x of margin for longer runs (newton's float32 q, 2.5e-8 above 1, is
 # within); a norm drift an engine lets grow (Drake's raw |q| reaches 1.41 in 10 s) is far beyond.
 QUATERNION_NORM_ROUNDOFF = {"float64": 1e-12, "float32": 1e-5}
