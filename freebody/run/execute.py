@@ -18,6 +18,7 @@ from ..reference_impl.truth import truth_chunks
 from ..results.document import auto_every
 from .judge import (Identification, RunJudge, TruthCache, VsEngine, describe_error, judge_run, no_samples, recorded,
                     run_identity, stepped_engine_pieces, stepped_map_pieces, whole_truth_scales)
+from .progress import report_steps
 from .records import RunOutput, RunResult, RunSpec, Simulated, Status
 
 
@@ -167,6 +168,7 @@ def _run_chunked(spec: RunSpec, cls, identify_scheme: bool, every: int, chunk: i
                 stepping += time.perf_counter() - t1
             judge.feed(piece, next(truth))
             del piece  # not held while the next one is stepped
+            report_steps(min(steps, max(0, judge.n - 1)), steps)  # to the progress display (throttled)
     except EngineDiverged as e:
         reason, diverged_at = e.reason, e.t
         if e.trajectory is not None and len(e.trajectory):

@@ -242,10 +242,14 @@ class LocalPool:
                 # integrator and precision); the cache goes with the store at close()
                 self.options["env"][var] = os.path.join(self.store, f"cache-{var.lower()}")
         self._start_failures = 0
+        self.on_steps: Callable[[int, int, int], None] | None = None  # set by run()
 
     # -- the event loop --
-    def run(self, tasks: list[Task], on_done: OnDone) -> None:
-        """Execute the tasks; ``on_done(index, payload)`` as each finishes (in completion order)."""
+    def run(self, tasks: list[Task], on_done: OnDone,
+            on_steps: Callable[[int, int, int], None] | None = None) -> None:
+        """Execute the tasks; ``on_done(index, payload)`` as each finishes (in completion order),
+        ``on_steps(index, steps done, total)`` as a long run reports its steps (run/progress.py)."""
+        self.on_steps = on_steps
         pending = list(tasks)
         finished: set[int] = set()
         truth_ready: set[int] = set()  # runs whose truth is computed (reported "started")
@@ -312,6 +316,8 @@ class LocalPool:
             elif msg[0] == "done":
                 task, w.task = w.task, None
                 done(task, msg[2])
+            elif msg[0] == "steps" and self.on_steps is not None:  # a long run's (index, done, total)
+                self.on_steps(*msg[1:])
 
     def _kill_overdue(self, done) -> None:
         """Kill every worker whose run is past the time limit; the run is ``failed``."""

@@ -9,6 +9,12 @@ item, at every tenth of the items or ``LOG_INTERVAL_S`` after the previous line,
 first, and after the last.  The formatting functions (:func:`format_duration`, :func:`format_eta`,
 :func:`estimate_eta`, :func:`progress_line`) are pure; :class:`ProgressDisplay` takes its clock as
 an argument so that tests can drive it.
+
+A long single run (judged chunk by chunk, :func:`freebody.run.execute.chunk_steps`) also shows its
+steps: the worker stepping it calls :func:`report_steps` after each chunk, which sends (at most every
+``STEP_REPORT_INTERVAL_S``) the steps done and the total to the parent, whose display shows them
+(:meth:`ProgressDisplay.steps`): on a terminal as the progress line's text, elsewhere as a line
+at most every ``LOG_INTERVAL_S``.
 """
 from __future__ import annotations
 
@@ -25,6 +31,7 @@ LOG_INTERVAL_S = 10.0  # in a log, a line at least this often while items finish
 LOG_FRACTION = 0.1  # ... and at every tenth of the items
 ETA_MIN_DONE = 3  # items done before their rate is trusted for an ETA (the first ones carry start-up)
 FALLBACK_WIDTH = 80  # columns when the terminal does not say
+STEP_REPORT_INTERVAL_S = 1.0  # a worker sends a long run's steps at most this often (cheap: one pipe message)
 
 
 def format_duration(seconds: float | None) -> str:
@@ -140,9 +147,60 @@ class ProgressDisplay:
         self.stream.write(printable(text) + "\n")
         self.stream.flush()
 
+    def steps(self, done: int, total: int, text: str) -> None:
+        """A run not finished yet has stepped ``done`` of its ``total`` steps (``text``: which run):
+        on a terminal the progress line says so (throttled as :meth:`update`); in a log, a line
+        if none was written for ``LOG_INTERVAL_S``."""
+        if not self.enabled:
+            return
+        now = self.clock()
+        since = None if self._last_write is None else now - self._last_write
+        # the steps first: a terminal's line is cut at its width, the run's name may be long
+        line = self.line(f"step {done}/{total} ({100 * done // max(1, total)}%) of {text}")
+        if self.tty:
+            if since is not None and since < TTY_INTERVAL_S:
+                self._pending = line
+                return
+            self._rewrite(line, end="")
+        elif since is None or since >= LOG_INTERVAL_S:
+            self.stream.write(line + "\n")
+        else:
+            return
+        self._last_write = now
+        self.stream.flush()
+
     def _rewrite(self, line: str, end: str) -> None:
         # one column short of the width: a line that fills the last column wraps on some terminals,
         # and "\r" then rewrites only the wrapped part
         width = max(20, terminal_width(self.stream) - 1)
         self.stream.write("\r\033[K" + line[:width] + end)
         self._pending = None
+
+
+# --- the steps of a long run, from the process stepping it ------------------------------------
+
+_reporter: Callable[[int, int], None] | None = None
+_last_report = -math.inf
+
+
+def set_step_reporter(reporter: Callable[[int, int], None] | None) -> None:
+    """Where :func:`report_steps` sends (steps done, total) in this process (a worker: to its
+    parent, for the run it executes); None: nowhere."""
+    global _reporter, _last_report
+    _reporter, _last_report = reporter, -math.inf
+
+
+def report_steps(done: int, total: int) -> None:
+    """A long run has stepped ``done`` of ``total`` steps: sent to the reporter, at most every
+    STEP_REPORT_INTERVAL_S (a no-op without one).  Never raises: progress is not worth a run."""
+    global _last_report
+    if _reporter is None:
+        return
+    now = time.monotonic()
+    if now - _last_report < STEP_REPORT_INTERVAL_S:
+        return
+    _last_report = now
+    try:
+        _reporter(int(done), int(total))
+    except Exception:
+        pass

@@ -94,7 +94,8 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
                          save_every=save_every, ship_saved=folder is not None and not local,
                          keep_arrays=keep_arrays)
             _execute_tasks(tasks, finished.add, executor=executor, jobs=jobs, timeout=timeout,
-                           scheduler=scheduler, engines=engines, isolate=isolate)
+                           scheduler=scheduler, engines=engines, isolate=isolate,
+                           on_steps=lambda i, done, total: bar.steps(done, total, _label(specs[i])))
         except KeyboardInterrupt as e:
             with _interrupts_deferred():
                 finished.interrupted(e)
@@ -216,12 +217,17 @@ class _Finished:
         self.bar.note(f"{what}; kept in {results} (marked incomplete){kept}")
 
 
+def _label(spec: RunSpec) -> str:
+    return f"{spec.problem.name} {spec.engine}/{spec.integrator} dt={spec.dt:g}"
+
+
 def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executor: str, jobs: int,
                    timeout: float | None, scheduler: str | None, engines: list[str],
-                   isolate: bool = True) -> None:
+                   isolate: bool = True, on_steps: Callable[[int, int, int], None] | None = None) -> None:
     """Execute the planned tasks, calling ``on_done(index, payload)`` as each finishes: in local
     worker processes (``jobs`` of them, one for ``jobs=1``), on a dask cluster, or in this process
-    (``isolate=False``)."""
+    (``isolate=False``).  ``on_steps(index, done, total)``: a long run's steps so far (local
+    workers only)."""
     from .executor import LocalPool, run_serial
 
     if executor == "dask":
@@ -236,7 +242,7 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
         pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines,
                          interpreters=interpreters(engines))
         try:
-            pool.run(tasks, on_done)
+            pool.run(tasks, on_done, on_steps)
         finally:
             with _interrupts_deferred():  # a second Ctrl-C must not leave workers behind
                 pool.close(kill=sys.exc_info()[0] is not None)

@@ -204,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
     import signal
     from multiprocessing.connection import Connection
 
+    from .progress import set_step_reporter
+
     argv = sys.argv[1:] if argv is None else argv
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
     conn_in = Connection(int(argv[0]), writable=False)
@@ -233,6 +235,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         task = msg[1]
         t0 = time.perf_counter()
+        set_step_reporter(lambda done, total, i=task.index: conn_out.send(("steps", i, done, total)))
         try:
             payload = runner.run(task)
         except BaseException as e:  # a bug outside the engine (execute never raises for the engine's)
