@@ -43,16 +43,16 @@ def run(args) -> int:
 def _write_new(path: Path, text: str) -> None:
     """Create ``path`` with ``text``; InputError if something is already there (a file is never
     overwritten; a folder, FIFO, device, socket or symbolic link there is named as such:
-    :func:`freebody.results.io.check_output_file`); a partly written file is removed (a full disk)."""
-    from ..results.io import check_output_file
+    :func:`freebody.results.io.output_obstacle`); a partly written file is removed (a full disk)."""
+    from ..results.io import output_obstacle
 
     shown = printable(path)
-    check_output_file(path, f"--out {shown}")
     try:
         fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666)
     except FileExistsError:
-        what = "a folder" if path.is_dir() else "a symbolic link" if path.is_symlink() else "a file"
-        raise InputError(f"--out: {shown}: {what} is already there; new-case never overwrites one "
+        kind = output_obstacle(path)
+        what = f"{kind} is already there (not a regular file)" if kind else "a file is already there"
+        raise InputError(f"--out: {shown}: {what}; new-case never overwrites one "
                          "(give another FILE, or remove it first)") from None
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
