@@ -50,6 +50,13 @@ def _env(tmp_path: Path, slow: bool) -> dict:
     return env
 
 
+def _sigint_as_at_a_terminal() -> None:
+    """In the child before exec: SIGINT at its default, as under a terminal.  A shell without job
+    control starts background commands with SIGINT ignored (``cmd &``, e.g. a CI script run in the
+    background), the child inherits that and Python keeps it ignored: then no Ctrl-C reaches it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _interrupt(proc: subprocess.Popen) -> tuple[int, str]:
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=WAIT_S)
@@ -69,7 +76,8 @@ def test_ctrl_c_while_freebody_imports(tmp_path, how):
         pytest.skip(f"no console script at {CONSOLE_SCRIPT} (freebody not installed with pip)")
     command = ([sys.executable, "-m", "freebody"] if how == "module" else [str(CONSOLE_SCRIPT)])
     proc = subprocess.Popen([*command, "list"], cwd=tmp_path, env=_env(tmp_path, slow=True),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_sigint_as_at_a_terminal)
     deadline = time.monotonic() + WAIT_S
     while not (tmp_path / "importing").exists():
         assert proc.poll() is None, proc.communicate()
@@ -87,7 +95,8 @@ def test_ctrl_c_at_any_instant(tmp_path, delay):
                              "--engine", "reference", "--integrator", "rk4", "--dt", "0.01", "--quiet",
                              "--out", str(out)],
                             cwd=tmp_path, env=_env(tmp_path, slow=False),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_sigint_as_at_a_terminal)
     time.sleep(delay)
     if proc.poll() is not None:  # finished before the signal: nothing to interrupt
         _, err = proc.communicate()

@@ -30,7 +30,8 @@ TIMING_KEYS = ("wall_time_s", "compile_time_s")
 # The engines compared serial vs parallel: every registered engine but the slow ones (mjx spends
 # ~10 s per run compiling); a missing one is a skipped run on both sides.
 ENGINES_COMPARED = FAST_ENGINES
-TIMEOUT_S = 1.0  # per-run limit of the hang test: far below crashing_adapter.SLEEP_S
+TIMEOUT_S = 3.0  # per-run limit of the hang test: far below crashing_adapter.SLEEP_S, above a small run judged
+# in a freshly started worker on a loaded machine (1 s was missed under pytest -n 2: maps loaded, judged)
 HANG_TEST_BUDGET_S = 30.0  # the hang test must finish well before the sleeping run would
 
 
@@ -74,8 +75,8 @@ def test_a_run_past_the_timeout_is_killed_and_the_others_finish(crasher, tmp_pat
     slept = _by_integrator(doc, crasher)["sleep"]
     assert slept["status"] == "failed" and f"timed out after {TIMEOUT_S:g} s" in slept["message"]
     assert slept["wall_time_s"] >= TIMEOUT_S
-    assert _by_integrator(doc, crasher)["semi-implicit-explicit-gyro"]["status"] == "ok"
-    assert _by_integrator(doc, "reference")["rk4"]["status"] == "ok"
+    for run in (_by_integrator(doc, crasher)["semi-implicit-explicit-gyro"], _by_integrator(doc, "reference")["rk4"]):
+        assert run["status"] == "ok", (run["engine"], run["integrator"], run["message"])
 
 
 def test_serial_and_parallel_results_are_identical(tmp_path):
