@@ -8,14 +8,12 @@ metrics, the final states, the statuses, the fitted orders and the cases.
 """
 from __future__ import annotations
 
-import os
-import stat
 from pathlib import Path
 
 from collections import Counter
 
 from ..errors import InputError, printable
-from .io import file_kind, write_json_atomic
+from .io import check_output_file, write_json_atomic
 
 
 def make_baseline(doc: dict, source: str) -> dict:
@@ -37,7 +35,7 @@ def store_baseline(source: str | Path, to: str | Path, force: bool = False, allo
     to = Path(to)
     if to.is_dir():
         raise InputError(f"--to {to}: is a directory; give a file name such as {to / 'baseline.json'}")
-    _check_regular(to)
+    check_output_file(to, f"--to {to}")  # the one rule of every file freebody writes (results/io)
     if to.exists() and not force:
         raise InputError(f"--to {to}: exists; pass --force to replace it")
     doc = load_side(source, "results")
@@ -67,17 +65,3 @@ def baseline_warnings(base: dict) -> list[str]:
     more = f" and {len(failed) - 3} more" if len(failed) > 3 else ""
     return [f"{len(failed)} of {len(base['runs'])} runs failed ({printable(names)}{more}): compare "
             f"only checks that they still fail; see their messages in the results"]
-
-
-def _check_regular(to: Path) -> None:
-    """InputError if ``to`` exists and is not a regular file (a device such as /dev/null, a FIFO,
-    a socket; through a symbolic link too): ``--force`` replaces files, never those."""
-    try:
-        mode = os.stat(to).st_mode
-    except FileNotFoundError:
-        return
-    except OSError as e:
-        raise InputError(f"--to {to}: cannot check it: {e.strerror or e}") from None
-    if not stat.S_ISREG(mode):
-        raise InputError(f"--to {to}: is {file_kind(mode)}, not a regular file; freebody writes baselines to "
-                         f"regular files only (--force does not replace it)")
