@@ -612,15 +612,16 @@ def is_plugin(name: str) -> bool:
         return False
 
 
-def plugin_import_failures() -> dict[str, str]:
-    """The plug-in modules whose import failed in this process's probes: module -> why (handed
-    to worker processes by :func:`seed_plugin_probes`, so that none waits for them again)."""
-    return {module: why for module, why in _probed.items() if why is not None}
+def plugin_probes() -> dict[str, str | None]:
+    """The outcome of this process's plug-in probes: module -> why its import failed, or None when
+    it imported (handed to worker processes by :func:`seed_plugin_probes`, so that none probes a
+    plug-in again: neither waits for a broken one nor starts a process for a sound one)."""
+    return dict(_probed)
 
 
-def seed_plugin_probes(failures: dict[str, str]) -> None:
-    """Take the failed probes of another process (:func:`plugin_import_failures`) as this one's."""
-    _probed.update(failures)
+def seed_plugin_probes(probes: dict[str, str | None]) -> None:
+    """Take the probes of another process (:func:`plugin_probes`) as this one's."""
+    _probed.update(probes)
 
 
 def probe_plugin(name: str, entry: EngineEntry) -> None:

@@ -131,6 +131,27 @@ def test_a_healthy_plugin_still_runs(tmp_path):
     assert all(r["status"] == "ok" for r in runs_of(tmp_path / "out")["advok"])
 
 
+# A sound plug-in that notes each import: the probe's (python -c) or a real one's, by process
+IMPORT_LOG = ("import os, sys\n"
+              "with open(os.environ['ADVLOG_FILE'], 'a') as f:\n"
+              "    f.write(('probe' if sys.argv[0] == '-c' else 'import') + ' %d\\n' % os.getpid())\n")
+
+
+def test_a_sound_plugin_is_probed_once_not_once_a_worker(tmp_path, monkeypatch):
+    """The parent probes a plug-in once and hands the outcome to its workers (of its own
+    interpreter): two workers import it without a probe process each."""
+    log = tmp_path / "imports.log"
+    monkeypatch.setenv("ADVLOG_FILE", str(log))
+    site = make_plugin(tmp_path / "site", "advlog", IMPORT_LOG)
+    proc, _ = freebody(site, "run", *SMALL_RUN, "--engine", "advlog", "--engine", "reference", "--jobs", "2",
+                       "--out", tmp_path / "out", limit=PLUGIN_IMPORT_LIMIT_S)
+    assert proc.returncode == 0, proc.stderr
+    assert all(r["status"] == "ok" for r in runs_of(tmp_path / "out")["advlog"])
+    kinds = [line.split()[0] for line in log.read_text().splitlines()]
+    assert kinds.count("probe") == 1, kinds
+    assert kinds.count("import") >= 2, kinds  # the parent's and at least one worker's
+
+
 @pytest.mark.parametrize("args", [
     ("list",),
     ("run", *SMALL_RUN, "--engine", "reference"),

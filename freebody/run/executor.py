@@ -233,8 +233,8 @@ class LocalPool:
         self.options = {"sys_path": list(sys.path), "engines": dict(base.ENGINES if registry is None else registry),
                         "preimport": [e for e in engines if e not in self.interpreters], "store": self.store,
                         "env": {}, "plugin_import_timeout": timeout,
-                        # plug-ins whose import hung, crashed or exited here: no worker waits again
-                        "plugin_failures": base.plugin_import_failures()}
+                        # plug-ins probed here: no worker probes them again (see worker._plugin_options)
+                        "plugin_probes": base.plugin_probes(), "parent_python": sys.executable}
         for entry in self.options["engines"].values():
             var = entry.cache_env
             if self.store is not None and var and var not in os.environ:

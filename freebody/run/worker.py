@@ -184,12 +184,17 @@ def preimport(engines) -> None:
 
 
 def _plugin_options(options: dict) -> None:
-    """The parent's plug-in import limit (``--timeout``) and the plug-ins it found broken."""
+    """The parent's plug-in import limit (``--timeout``) and its probes: the plug-ins it found
+    broken, and, in a worker of the parent's interpreter, those it imported (another interpreter,
+    an engine's environment, has other packages: it probes a sound one itself)."""
     from ..adapters import base
 
     if options.get("plugin_import_timeout") is not None:
         base.set_plugin_import_timeout(options["plugin_import_timeout"])
-    base.seed_plugin_probes(options.get("plugin_failures") or {})
+    probes = options.get("plugin_probes") or {}
+    if options.get("parent_python") != sys.executable:
+        probes = {module: why for module, why in probes.items() if why is not None}
+    base.seed_plugin_probes(probes)
 
 
 def _watch_parent(ppid: int) -> None:
