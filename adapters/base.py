@@ -280,13 +280,21 @@ class Adapter(ABC):
             yield piece if done == 0 else piece.tail(1)
             done += m
 
-    def simulate(self, steps: int, chunk_steps: int | None = None) -> Trajectory:
+    def simulate(self, steps: int, chunk_steps: int | None = None,
+                 on_piece: Callable[[int], None] | None = None) -> Trajectory:
         """The whole run: the steps + 1 samples from the current state (t = (k0 + i) dt).
-        Raises :class:`EngineDiverged` carrying every sample up to the blow-up."""
+        Raises :class:`EngineDiverged` carrying every sample up to the blow-up.  ``on_piece(done)``
+        is called after each piece of ``chunk_steps`` steps with the steps done so far (the
+        harness's progress of a long run)."""
         pieces: list[Trajectory] = []
+        done = 0
         try:
             for piece in self.chunks(steps, chunk_steps):
                 pieces.append(piece)
+                if on_piece is not None:
+                    # the first piece holds its steps + 1 samples, the others their steps
+                    done += len(piece) - (1 if len(pieces) == 1 else 0)
+                    on_piece(done)
         except EngineDiverged as e:
             if e.trajectory is not None:
                 pieces.append(e.trajectory)

@@ -208,6 +208,13 @@ CHUNKED_JUDGING_MIN_STEPS = 200_000
 # a long run's memory stays bounded by its chunk (their whole runs, 16 streams of q, would not).
 ENGINE_MAP_CANDIDATES_MAX_STEPS = 200_000
 JUDGE_CHUNK_STEPS = 100_000
+# A run judged whole but longer than PROGRESS_PIECE_MIN_STEPS steps is stepped in pieces of
+# PROGRESS_PIECE_STEPS (run/execute._simulate) so the progress display can show its steps done (a
+# Drake rk5 run of 100,000 steps takes minutes).  The pieces are the one-shot run bit for bit (the
+# chunks contract); 10,000 is a multiple of MJX's and Brax's compiled scan length (1000 steps), so
+# no piece costs them a compilation, and a piece's overhead (one advance call, one copy) is < 0.1%.
+PROGRESS_PIECE_MIN_STEPS = 20_000
+PROGRESS_PIECE_STEPS = 10_000
 # What the freebody process keeps per run (the spec, the result, results.json being written):
 # measured 12.4 KB per run (2000 runs of 2 steps) at the peak.
 RUN_RECORD_BYTES = 16 * 1024

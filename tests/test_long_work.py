@@ -109,3 +109,36 @@ def test_a_long_run_shows_its_steps_from_the_worker(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert re.search(r"^\[0/1 runs\].* step 1\d{5}/210000 \(\d+%\) of dzhanibekov reference/rk4 dt=0\.0001$",
                      proc.stderr, re.M), proc.stderr
+
+
+def test_a_long_run_judged_whole_reports_its_steps_piece_by_piece(monkeypatch):
+    """A run below the chunked-judging length but above PROGRESS_PIECE_MIN_STEPS is stepped in
+    pieces that report their steps, and its result is the one-shot run's, number for number."""
+    spec = RunSpec(load_case("dzhanibekov"), "mujoco", "RK4", 0.01, 2_500)
+    pytest.importorskip("mujoco", reason="mujoco not installed: pip install -e '.[engines]'")
+    whole = execute(spec).result  # 2,500 <= PROGRESS_PIECE_MIN_STEPS: one piece
+    monkeypatch.setattr(tol, "PROGRESS_PIECE_MIN_STEPS", 2_000)
+    monkeypatch.setattr(tol, "PROGRESS_PIECE_STEPS", 1_000)
+    monkeypatch.setattr(progress, "STEP_REPORT_INTERVAL_S", 0.0)
+    reports = []
+    progress.set_step_reporter(lambda done, total: reports.append((done, total)))
+    try:
+        pieces = execute(spec).result
+    finally:
+        progress.set_step_reporter(None)
+    assert reports == [(1_000, 2_500), (2_000, 2_500), (2_500, 2_500)]
+    assert pieces.status == "ok", pieces.message
+    for field in ("metrics", "final_state", "matches_reference", "state_growth"):
+        assert getattr(pieces, field) == getattr(whole, field), field
+
+
+def test_no_isolation_shows_a_long_runs_steps(monkeypatch, capsys):
+    """--no-isolation (every run in the freebody process) shows the steps of a long run too."""
+    monkeypatch.setattr(tol, "PROGRESS_PIECE_MIN_STEPS", 2_000)
+    monkeypatch.setattr(tol, "PROGRESS_PIECE_STEPS", 1_000)
+    monkeypatch.setattr(progress, "STEP_REPORT_INTERVAL_S", 0.0)
+    code = main(["run", "dzhanibekov", "--engine", "reference", "--integrator", "rk4", "--dt", "0.001",
+                 "--duration", "3", "--no-report", "--no-isolation"])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert re.search(r"^\[0/1 runs\].* step 1000/3000 \(33%\) of dzhanibekov reference/rk4 dt=0\.001$", err, re.M), err

@@ -83,7 +83,7 @@ def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool
         adapter = cls(pb, spec.dt, spec.integrator, spec.precision)
         settings = adapter.settings
         try:
-            trajectory = adapter.simulate(spec.steps)
+            trajectory = _simulate(adapter, spec.steps)
         finally:
             adapter.close()
         sim = Simulated(trajectory, None, "", version, settings, time.perf_counter() - t0,
@@ -96,6 +96,15 @@ def _execute(spec: RunSpec, cls, cache: TruthCache | None, identify_scheme: bool
     except BaseException as e:  # an engine calling sys.exit() fails its run, not freebody
         return no_samples(base, Status.FAILED, describe_error(e), time.perf_counter() - t0, version, settings)
     return judge_run(spec, sim, cache, identify_scheme, compare_with=cls.compare_with)
+
+
+def _simulate(adapter, steps: int):
+    """``adapter.simulate(steps)``; a run of more than PROGRESS_PIECE_MIN_STEPS steps in pieces of
+    PROGRESS_PIECE_STEPS, its steps done reported to the progress display after each (the samples
+    are the one-shot run's bit for bit: the chunks contract, checked by the conformance suite)."""
+    if steps <= tol.PROGRESS_PIECE_MIN_STEPS:
+        return adapter.simulate(steps)
+    return adapter.simulate(steps, tol.PROGRESS_PIECE_STEPS, on_piece=lambda done: report_steps(done, steps))
 
 
 def chunk_steps(steps: int, min_steps: int | None = None, chunk: int | None = None) -> int | None:

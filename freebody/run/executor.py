@@ -112,14 +112,23 @@ def plan(specs: list[RunSpec], simulated: dict | None = None, **run_options) -> 
     return tasks
 
 
-def run_serial(tasks: list[Task], on_done: OnDone) -> None:
-    """Execute the tasks in this process, in spec order within the plan's grouping."""
+def run_serial(tasks: list[Task], on_done: OnDone,
+               on_steps: Callable[[int, int, int], None] | None = None) -> None:
+    """Execute the tasks in this process, in spec order within the plan's grouping;
+    ``on_steps(index, done, total)`` as a long run reports its steps (run/progress.py)."""
+    from .progress import set_step_reporter
+
     first_seen: dict[tuple, int] = {}
     for t in tasks:
         first_seen[t.group] = min(first_seen.get(t.group, t.index), t.index)
     runner = Runner()
-    for t in sorted(tasks, key=lambda t: (first_seen[t.group], t.index)):
-        on_done(t.index, runner.run(t.run))
+    try:
+        for t in sorted(tasks, key=lambda t: (first_seen[t.group], t.index)):
+            if on_steps is not None:
+                set_step_reporter(lambda done, total, i=t.index: on_steps(i, done, total))
+            on_done(t.index, runner.run(t.run))
+    finally:
+        set_step_reporter(None)
 
 
 # --- worker processes ------------------------------------------------------------------------

@@ -10,8 +10,10 @@ first, and after the last.  The formatting functions (:func:`format_duration`, :
 :func:`estimate_eta`, :func:`progress_line`) are pure; :class:`ProgressDisplay` takes its clock as
 an argument so that tests can drive it.
 
-A long single run (judged chunk by chunk, :func:`freebody.run.execute.chunk_steps`) also shows its
-steps: the worker stepping it calls :func:`report_steps` after each chunk, which sends (at most every
+A long single run (judged chunk by chunk, :func:`freebody.run.execute.chunk_steps`, or judged whole
+but stepped in pieces of ``tolerances.PROGRESS_PIECE_STEPS``) also shows its steps: the process
+stepping it (a worker, or freebody's own with ``--no-isolation``; not a dask worker) calls
+:func:`report_steps` after each chunk or piece, which sends (at most every
 ``STEP_REPORT_INTERVAL_S``) the steps done and the total to the parent, whose display shows them
 (:meth:`ProgressDisplay.steps`): on a terminal as the progress line's text, elsewhere as a line
 at most every ``LOG_INTERVAL_S``.

@@ -227,7 +227,7 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
     """Execute the planned tasks, calling ``on_done(index, payload)`` as each finishes: in local
     worker processes (``jobs`` of them, one for ``jobs=1``), on a dask cluster, or in this process
     (``isolate=False``).  ``on_steps(index, done, total)``: a long run's steps so far (local
-    workers only)."""
+    workers and this process; not dask's workers)."""
     from .executor import LocalPool, run_serial
 
     if executor == "dask":
@@ -235,7 +235,7 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
 
         run_dask(tasks, scheduler, timeout, engines, on_done)
     elif not isolate:
-        run_serial(tasks, on_done)
+        run_serial(tasks, on_done, on_steps)
     else:
         from ..envs.engines import interpreters
 
