@@ -13,13 +13,21 @@ Both return a :class:`Trajectory` sampled at t_k = k dt, k = 0..steps, or delive
 from __future__ import annotations
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from typing import Iterator
 
 from .conventions import Trajectory
 from .problem import Problem
 from .rotations import matrix_from_quat, quat_multiply, quat_normalize
+
+
+def solve_ivp(*args, **kwargs):
+    """scipy's ``solve_ivp``, imported on first use: importing scipy.integrate costs about 0.35 s
+    CPU, which a process that never integrates a numerical truth (a closed form) does not pay."""
+    from scipy.integrate import solve_ivp as scipy_solve_ivp
+
+    return scipy_solve_ivp(*args, **kwargs)
+
 
 NUMERICAL_RTOL = 1e-12  # DOP853 relative tolerance (about 6e-10 rad over 10 s on Dzhanibekov)
 NUMERICAL_ATOL = 1e-12  # DOP853 absolute tolerance
