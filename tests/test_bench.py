@@ -1,5 +1,8 @@
-"""``freebody bench``: its pieces (the pinned suite, the targets and their evaluation, the child
-process timer) and a ``--quick`` run end to end.
+"""``freebody bench`` (freebody/tools/bench/): the check logic on synthetic figures (every target
+of issue 29 passes, misses, or is n/a with its reason), the child-process timer (exit code, CPU,
+peak RSS of the child and not of the caller), the truth yardstick (the same motion as freebody's
+truth), schema 3 documents still readable, the command line, and one ``--quick`` run end to end
+(slow).
 
 No timing assertions on the machine's speed (that is what the PASS/MISS of the benchmark is for);
 every assertion here can fail on a wrong benchmark.
@@ -7,6 +10,7 @@ every assertion here can fail on a wrong benchmark.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import io
 import json
 import math
@@ -15,72 +19,23 @@ import sys
 import numpy as np
 import pytest
 
-from freebody.adapters.base import engine_names, is_available
+from freebody.adapters.base import is_available
 from freebody.cli import main
 from freebody.reference_impl.integrators import INTEGRATORS
 from freebody.tools import bench
-from freebody.tools.bench import (ENGINE_EQUIVALENT_MAPS, PINNED_SUITE_CASES,
-                                  PINNED_SUITE_INTEGRATORS, PINNED_SUITE_RUNS, QUICK_SUITE_CASES,
-                                  SCHEMA_VERSION)
+from freebody.tools.bench import config as C
 
-PINNED_ENGINES = list(PINNED_SUITE_INTEGRATORS)
-requires_pinned_engines = pytest.mark.skipif(
-    not all(is_available(e) for e in PINNED_ENGINES),
-    reason=f"the pinned suite needs every one of {', '.join(PINNED_ENGINES)} installed")
+# The yardstick DOP853 (numba rhs) and freebody's truth integrate the same equations with the same
+# tolerances (rtol = atol = 1e-12) and sample times: on body_torque_spinup (2 s at 1 ms) they agree
+# to round-off of the rhs arithmetic (measured 8e-16 in q, 0 in x); 1e-10 leaves room for a
+# reordered sum in either rhs and still fails on a wrong sign, frame or inertia.
+TRUTH_YARDSTICK_AGREEMENT = 1e-10
+
+requires_mujoco = pytest.mark.skipif(not is_available("mujoco"), reason="mujoco not installed")
 
 
 def _positive(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
-
-
-# --- the pinned suite -----------------------------------------------------------------------------
-
-def test_pinned_suite_has_525_distinct_runs():
-    runs = bench.pinned_suite_runs()
-    assert len(runs) == PINNED_SUITE_RUNS == 525
-    assert len(set(r[:5] for r in runs)) == len(runs)  # (case, engine, integrator, precision, dt)
-    assert "mjx" not in PINNED_SUITE_INTEGRATORS
-    assert len(bench.pinned_suite_runs(QUICK_SUITE_CASES)) == 60
-
-
-@requires_pinned_engines
-def test_pinned_suite_is_in_todays_default_suite_without_mjx():
-    """Every pinned run is one that `freebody run` (no case, no option) runs today on the engines
-    but mjx, with the same steps, and the default runs of the pinned (case, engine, integrator)
-    are exactly the pinned list.  When pinned (2026-11-27) the pinned list was the whole default
-    suite without mjx (525 runs); cases, engines or integrators added since are not pinned.  Fails
-    when a pinned case changes its time steps or length, or an engine drops a pinned integrator."""
-    from freebody.input.casefile import bundled_case_paths
-
-    args = list(bundled_case_paths())
-    for e in engine_names():
-        if e != "mjx":
-            args += ["--engine", e]
-    default = bench.expanded_runs(args)
-    pinned = bench.pinned_suite_runs()
-    assert len(default) >= PINNED_SUITE_RUNS
-    assert [r for r in default if r[0] in PINNED_SUITE_CASES
-            and r[2] in PINNED_SUITE_INTEGRATORS.get(r[1], ())] == pinned
-
-
-@requires_pinned_engines
-def test_the_pinned_command_expands_to_the_pinned_list():
-    assert bench.pinned_suite_differences() == []
-    assert bench.pinned_suite_differences(QUICK_SUITE_CASES) == []
-    args = bench.pinned_suite_args()
-    assert args[:len(PINNED_SUITE_CASES)] == list(PINNED_SUITE_CASES)
-    assert "--precision" in args and "reference:rk4" in args and "mujoco:Euler" in args
-
-
-def test_a_changed_pin_is_reported(monkeypatch):
-    """A pinned case whose time steps are not the case's any more, an unknown case: named."""
-    changed = dict(PINNED_SUITE_CASES, quiz=((0.1, 2), (0.05, 2)))
-    monkeypatch.setattr(bench, "PINNED_SUITE_CASES", changed)
-    diffs = bench.pinned_suite_differences(["quiz"])
-    assert diffs and "quiz" in diffs[0]
-    monkeypatch.setattr(bench, "PINNED_SUITE_CASES", {"no_such_case": ((0.01, 1),)})
-    diffs = bench.pinned_suite_differences()
-    assert len(diffs) == 1 and "no longer expands" in diffs[0]
 
 
 # --- targets and their evaluation --------------------------------------------------------------------
@@ -100,30 +55,29 @@ def test_meets_rejects_an_unknown_comparison():
         bench.meets(1.0, "<", 2.0)
 
 
-def test_long_run_limit_is_three_times_bare_plus_one_second():
-    assert bench.long_run_limit(0.1) == pytest.approx(1.3)
-    assert bench.long_run_limit(0.0) == 1.0
-
-
 def _doc(**over) -> dict:
-    """A synthetic full (non-quick) bench document whose every target passes."""
+    """A synthetic full (non-quick) schema 4 document whose every target passes."""
     doc = {
-        "quick": False, "repeats": 7, "case": "dzhanibekov", "dt": 0.001, "cores": 2,
+        "schema_version": 4, "quick": False, "cold": False, "repeats": 5, "cores": 2,
         "created": "2026-01-01T00:00:00+00:00", "engines": {"mujoco": "4.0.0"}, "skipped": {},
-        "engine_steps": 20000,
-        "engine_step_s": {"mujoco": {"bare_step_s": 2e-6, "freebody_step_s": 2.2e-6,
-                                     "overhead_ratio": 1.1}},
-        "reference_map_steps": 1000, "reference_map_mujoco_step_s": 2e-6,
-        "reference_map_step_s": {name: 1.2e-7 for name in INTEGRATORS},
-        "reference_map_call_s": {name: 1.2e-4 for name in INTEGRATORS},
-        "long_run_steps": 50000, "short_run_steps": 10, "long_run_command": "freebody run ...",
-        "long_run_s": 2.0, "short_run_s": 1.8, "long_run_extra_s": 0.2, "long_run_bare_s": 0.1,
-        "long_run_limit_s": 1.3, "short_run_rss_bytes": 200e6, "long_run_rss_bytes": 200e6,
-        "rss_steps": 10**7, "rss_bytes": 300e6, "rss_run_s": 20.0,
-        "suite_pinned": True, "suite_pinned_differences": [], "suite_runs": 525, "suite_jobs": 2,
-        "suite_serial_s": 60.0, "suite_parallel_s": 40.0, "suite_speedup": 1.5,
-        "suite_trajectories_bytes": 30e6, "suite_report_html_bytes": 3e6,
-        "suite_results_json_bytes": 1e6, "suite_note": "...",
+        "overhead_one_run_cpu_s": 1.0, "overhead_n_runs": 111, "overhead_n_runs_cpu_s": 1.33,
+        "overhead_marginal_run_cpu_s": 0.003,
+        "suite_nomjx_wall_s": 100.0, "suite_nomjx_stepping_s": 30.0, "suite_nomjx_runs": 900,
+        "suite_with_mjx": True, "suite_warm_wall_s": 200.0,
+        "suite_warm_stepping_s": {"mjx": 20.0, "mujoco": 12.0, "reference": 9.0},
+        "suite_cold_wall_s": 210.0, "suite_report_wall_s": 15.0, "suite_runs": 1551,
+        "suite_trajectories_bytes": 40e6, "suite_report_html_bytes": 3e6,
+        "suite_report_md_bytes": 150e3,
+        "compile_cpu_s": 6.0, "compile_cold_cpu_s": 9.0, "compile_warm_cpu_s": 3.0,
+        "truth_cpu_s": 0.006, "truth_yardstick_cpu_s": 0.003, "truth_case": "body_torque_spinup",
+        "truth_steps": 2000,
+        "maps_step_s": {name: 2e-7 for name in INTEGRATORS},
+        "maps_floor_step_s": {name: 1.5e-7 for name in INTEGRATORS},
+        "maps_mj_step_s": 2.5e-6, "maps_rollout_step_s": 1.8e-6,
+        "sweep_bodies": 200, "sweep_body_steps_per_s": 5000.0, "sweep_rollout_body_steps_per_s": 40000.0,
+        "sweep_jobs_gain": 1.8, "sweep_jobs1_wall_s": 8.0, "sweep_jobs2_wall_s": 4.4,
+        "rss_steps": 10**7, "rss_bytes": 300e6, "rss_short_bytes": 200e6, "rss_short_steps": 10,
+        "engine_step_s": {"mujoco": {"bare_step_s": 2e-6, "freebody_step_s": 2.2e-6, "overhead_ratio": 1.1}},
     }
     doc.update(over)
     return doc
@@ -136,73 +90,161 @@ def _status(doc) -> dict[str, list[str]]:
     return out
 
 
-def test_checks_of_a_passing_document():
-    assert _status(_doc()) == {"a": ["PASS", "PASS"], "b": ["PASS"], "c": ["PASS"],
-                               "d": ["PASS", "PASS"], "e": ["PASS"], "1": ["PASS"]}
+ALL_PASS = {"run": ["PASS"] * 2, "suite": ["PASS"] * 2, "compile": ["PASS"], "truth": ["PASS"],
+            "maps": ["PASS"] * 8, "sweep": ["PASS"] * 2, "report": ["PASS"], "output": ["PASS"] * 3,
+            "rss": ["PASS"], "engine": ["PASS"]}
+
+
+def test_one_check_per_target_of_issue_29_and_a_passing_document():
+    assert _status(_doc()) == ALL_PASS
 
 
 def test_checks_miss_each_target():
-    doc = _doc(reference_map_step_s={name: 3e-7 for name in INTEGRATORS},  # 6.7x < 10x
-               long_run_extra_s=1.5,                                        # > 3 x 0.1 + 1 s
-               suite_parallel_s=50.0, suite_trajectories_bytes=60e6, suite_report_html_bytes=5e6,
-               rss_bytes=1.2e9)
+    doc = _doc(overhead_marginal_run_cpu_s=0.02, overhead_one_run_cpu_s=2.5,
+               suite_nomjx_wall_s=150.0,                                   # 5x > 4x
+               suite_warm_stepping_s={"mjx": 30.0, "mujoco": 12.0},        # 2.5x > 2x
+               compile_cpu_s=26.0, truth_cpu_s=0.024,                      # 8x > 3x
+               maps_step_s={name: 6e-7 for name in INTEGRATORS},           # 4x floor, 4.2x mj_step
+               sweep_body_steps_per_s=250.0, sweep_jobs_gain=1.1,
+               suite_report_wall_s=40.0, suite_trajectories_bytes=56e6, suite_report_html_bytes=4.1e6,
+               suite_report_md_bytes=1.17e6, rss_bytes=1.2e9)
     doc["engine_step_s"]["mujoco"]["overhead_ratio"] = 1.4
     st = _status(doc)
-    assert st == {"a": ["MISS", "MISS"], "b": ["MISS"], "c": ["MISS"], "d": ["MISS", "MISS"],
-                  "e": ["MISS"], "1": ["MISS"]}
-    e = next(c for c in bench.checks(doc) if c.key == "e")
-    assert e.value == pytest.approx(1200.0) and "100 B a step more" in e.detail  # (1.2e9 - 2e8) / 1e7
+    assert st == {k: ["MISS"] * len(v) for k, v in ALL_PASS.items()}
+    rows = bench.checks(doc)
+    run = rows[0]
+    assert run.value == pytest.approx(20.0) and run.unit == "ms"
+    rss = next(c for c in rows if c.key == "rss")
+    assert rss.value == pytest.approx(1200.0) and "100 B a step more" in rss.detail  # (1.2e9 - 2e8) / 1e7
+
+
+def test_the_ratios_are_the_ones_the_targets_name():
+    rows = {(c.key, c.label): c for c in bench.checks(_doc())}
+    by = lambda key, word: next(c for (k, label), c in rows.items() if k == key and word in label)  # noqa: E731
+    assert by("suite", "w/o MJX").value == pytest.approx(100 / 30)
+    assert by("suite", "MJX stepping").value == pytest.approx(20 / 12)
+    assert by("truth", "truth").value == pytest.approx(2.0)
+    assert by("sweep", "rollout").value == pytest.approx(5000 / 40000)
+    assert by("report", "report").value == pytest.approx(15 / 210)
+    assert by("output", "report.md").value == pytest.approx(150.0) and by("output", "report.md").unit == "KB"
+    assert by("maps", "semi-implicit-explicit-gyro / its flat").value == pytest.approx(2 / 1.5)
+    assert by("maps", "semi-implicit-explicit-gyro: mj_step").value == pytest.approx(12.5)
+
+
+def test_quick_figures_are_shown_not_judged():
+    st = _status(_doc(quick=True, sweep_bodies=10, suite_with_mjx=False))
+    for key in ("sweep", "report", "output"):
+        assert set(st[key]) == {"n/a"}, key
+    assert st["suite"] == ["n/a", "n/a"]
+    assert st["run"] == ["PASS", "PASS"] and st["truth"] == ["PASS"] and st["rss"] == ["PASS"]
+    rows = bench.checks(_doc(quick=True, suite_with_mjx=False))
+    suite = [c for c in rows if c.key == "suite"]
+    assert suite[0].value is not None and "--quick" in suite[0].note  # measured, shown
+    assert suite[1].value is None  # no MJX in the quick suite
 
 
 def test_peak_rss_of_a_shorter_run_misses_over_the_limit_and_is_not_judged_under_it():
     """A longer run needs at least as much memory, but need not need more: a run shorter than the
     target's misses over 1 GB and is not judged (no extrapolation) under it."""
-    e = next(c for c in bench.checks(_doc(rss_steps=10**5, rss_bytes=2e9)) if c.key == "e")
+    e = next(c for c in bench.checks(_doc(rss_steps=10**5, rss_bytes=2e9)) if c.key == "rss")
     assert e.status == "MISS" and e.value == pytest.approx(2000.0)
-    e = next(c for c in bench.checks(_doc(rss_steps=10**6, rss_bytes=9e8)) if c.key == "e")
+    e = next(c for c in bench.checks(_doc(rss_steps=10**6, rss_bytes=9e8)) if c.key == "rss")
     assert e.status == "n/a" and e.value == pytest.approx(900.0) and "10000000" in e.note
 
 
-def test_quick_or_changed_suite_is_not_judged():
-    for doc in (_doc(quick=True, suite_pinned=False, suite_runs=60),
-                _doc(suite_pinned_differences=["1 pinned runs not in today's list: ..."])):
-        st = _status(doc)
-        assert st["c"] == ["n/a"] and st["d"] == ["n/a", "n/a"]
-        assert st["a"] == ["PASS", "PASS"] and st["b"] == ["PASS"]
-
-
 def test_missing_figures_are_not_applicable_with_the_reason():
-    doc = _doc()
-    for key in ("reference_map_mujoco_step_s", "long_run_s", "rss_bytes"):
-        doc.pop(key)
-    doc.update(reference_map_mujoco_note="mujoco unavailable: EngineMissing", long_run_note="mujoco not installed",
-               rss_note="mujoco not installed", suite_parallel_s=None, suite_serial_s=None,
-               suite_note="suite not measured (--no-suite)")
+    """A part not measured (or failed) leaves its figures out: its checks are n/a and say why."""
+    doc = {k: v for k, v in _doc().items() if not k.startswith(("overhead_", "suite_", "truth_", "maps_floor"))}
+    doc.update(overhead_note="mujoco not installed", suite_note="not measured (--part)",
+               truth_note="failed: RuntimeError: boom", maps_floor_note="no flat-loop floors yet")
     rows = bench.checks(doc)
-    assert all(c.status == "n/a" for c in rows if c.key in "abcde"), [(c.key, c.status) for c in rows]
-    assert "mujoco unavailable" in rows[0].note
-    assert "--no-suite" in next(c for c in rows if c.key == "c").note
+    for c in rows:
+        if c.key in ("run", "suite", "truth", "report", "output") or "flat loop" in c.label:
+            assert c.status == "n/a" and c.value is None and c.note, c
+    assert "mujoco not installed" in rows[0].note
+    assert any("boom" in c.note for c in rows if c.key == "truth")
     text = bench.format_text(doc)  # renders without the missing figures
-    assert "n/a" in text and "mujoco not installed" in text
+    assert "n/a" in text and "no flat-loop floors yet" in text
 
 
 def test_text_table_lists_every_check_with_its_status():
-    doc = _doc(long_run_extra_s=1.5)
+    doc = _doc(truth_cpu_s=0.024)
     doc["checks"] = [dict(vars(c), status=c.status) for c in bench.checks(doc)]
     text = bench.format_text(doc)
     table = text.split("\n\n")[1].splitlines()
     assert len(table) == 2 + len(doc["checks"])
-    b_row = next(line for line in table if line.lstrip().startswith("b "))
-    assert "MISS" in b_row and "1.50 s" in b_row and "<= 1.3 s" in b_row
-    assert "1 MISS" in text
+    row = next(line for line in table if line.lstrip().startswith("truth "))
+    assert "MISS" in row and "8.00x" in row and "<= 3x" in row
+    assert f"{len(doc['checks']) - 1} PASS, 1 MISS, 0 n/a" in text
 
 
-# --- child processes --------------------------------------------------------------------------------
+# --- schema 3 documents --------------------------------------------------------------------------------
 
-def test_run_child_reports_exit_code_and_wall_time():
-    child = bench.run_child([sys.executable, "-c", "import sys, time; time.sleep(0.2); sys.exit(3)"])
+SCHEMA_3 = {
+    "schema_version": 3, "freebody_version": "0.2.0", "created": "2026-11-27T21:02:00+00:00",
+    "quick": False, "repeats": 7, "case": "dzhanibekov", "dt": 0.001, "cores": 2,
+    "load_average": [4.1, 3.0, 2.0], "engines": {"mujoco": "4.0.0"},
+    "reference_map_steps": 200000, "reference_map_step_s": {"semi-implicit-explicit-gyro": 1.79e-7},
+    "reference_map_call_s": {"semi-implicit-explicit-gyro": 0.036}, "reference_map_mujoco_step_s": 2.85e-6,
+    "short_run_steps": 10, "short_run_rss_bytes": 217e6, "rss_steps": 10**6, "rss_bytes": 1.109e9,
+    "engine_steps": 20000, "skipped": {},
+    "engine_step_s": {"mujoco": {"bare_step_s": 2e-6, "freebody_step_s": 1.6e-6, "overhead_ratio": 0.81}},
+    "checks": [{"key": "a", "label": "semi-implicit-explicit-gyro: mj_step / map step", "value": 15.9,
+                "op": ">=", "limit": 10.0, "unit": "x", "passed": True, "status": "PASS",
+                "detail": "179 ns vs 2.85 us a step", "note": ""},
+               {"key": "e", "label": "peak RSS of a 1000000-step MuJoCo run", "value": 1109.0, "op": "<=",
+                "limit": 1000.0, "unit": "MB", "passed": False, "status": "MISS", "detail": "", "note": ""}],
+}
+
+
+def test_a_schema_3_document_is_read_with_its_checks_kept(tmp_path):
+    path = tmp_path / "bench3.json"
+    path.write_text(json.dumps(SCHEMA_3))
+    doc = bench.load_bench(path)
+    assert doc["schema_version"] == bench.SCHEMA_VERSION == 4 and doc["migrated_from"] == 3
+    assert doc["maps_step_s"] == SCHEMA_3["reference_map_step_s"]
+    assert doc["maps_mj_step_s"] == 2.85e-6 and doc["rss_short_bytes"] == 217e6
+    assert doc["checks"] == SCHEMA_3["checks"]  # judged as they were, by issue 15's targets
+    text = bench.format_text(doc)
+    assert "schema 3 document" in text and "1 PASS, 1 MISS, 0 n/a" in text
+
+
+def test_show_prints_a_saved_document_and_refuses_an_unknown_schema(tmp_path, capsys):
+    path = tmp_path / "bench3.json"
+    path.write_text(json.dumps(SCHEMA_3))
+    assert main(["bench", "--show", str(path)]) == 0
+    assert "peak RSS of a 1000000-step MuJoCo run" in capsys.readouterr().out
+    path.write_text(json.dumps(dict(SCHEMA_3, schema_version=2)))
+    assert main(["bench", "--show", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "bench schema 2" in err
+
+
+def test_a_schema_4_document_is_judged_again_the_same(tmp_path):
+    doc = _doc()
+    doc["checks"] = [dict(vars(c), status=c.status) for c in bench.checks(doc)]
+    path = tmp_path / "bench4.json"
+    path.write_text(json.dumps(doc))
+    back = bench.load_bench(path)
+    assert "migrated_from" not in back
+    assert [dict(vars(c), status=c.status) for c in bench.checks(back)] == doc["checks"]
+
+
+# --- what is timed ------------------------------------------------------------------------------------
+
+def test_run_child_reports_exit_code_wall_and_cpu_time():
+    child = bench.run_child([sys.executable, "-c",
+                             "import sys, time\nt = time.process_time()\nwhile time.process_time() - t < 0.3: pass\n"
+                             "time.sleep(0.2); sys.exit(3)"])
     assert child.returncode == 3
-    assert 0.2 <= child.wall_s < 30
+    assert 0.5 <= child.wall_s < 60
+    assert child.cpu_s is None or 0.3 <= child.cpu_s < child.wall_s + 1
+
+
+def test_run_child_passes_environment_variables():
+    child = bench.run_child([sys.executable, "-c", "import os, sys; sys.exit(int(os.environ['FB_X']))"],
+                            env={"FB_X": "7"})
+    assert child.returncode == 7
 
 
 @pytest.mark.skipif(sys.platform.startswith("win"), reason="no resource module")
@@ -227,24 +269,61 @@ def test_folder_bytes(tmp_path):
     assert bench.folder_bytes(tmp_path / "missing") == 0
 
 
+def test_the_truth_yardstick_computes_freebodys_truth():
+    """The numba-rhs DOP853 is a yardstick of the same computation: same motion, same samples."""
+    from freebody.input.casefile import load_case
+    from freebody.reference_impl.truth import NUMERICAL_ATOL, NUMERICAL_RTOL, truth_trajectory
+    from freebody.tools.bench.truth import yardstick_truth
+
+    problem = load_case(C.TRUTH_CASE)
+    dt, steps = 0.01, 200
+    ours = truth_trajectory(problem, dt, steps)
+    Y, nfev = yardstick_truth(problem, dt, steps, NUMERICAL_RTOL, NUMERICAL_ATOL)
+    q = Y[:, 6:10] / np.linalg.norm(Y[:, 6:10], axis=1)[:, None]
+    q *= np.sign(np.sum(q * ours.quaternion_wxyz, axis=1))[:, None]
+    assert Y.shape == (steps + 1, 13) and nfev > 0
+    assert np.max(np.abs(q - ours.quaternion_wxyz)) < TRUTH_YARDSTICK_AGREEMENT
+    assert np.max(np.abs(Y[:, 0:3] - ours.position)) < TRUTH_YARDSTICK_AGREEMENT
+    # and it is not trivially equal: the couple spins the body up
+    assert np.linalg.norm(ours.angular_velocity[-1]) > 2 * np.linalg.norm(ours.angular_velocity[0])
+
+
+@requires_mujoco
+def test_rollout_steps_the_models_it_is_given():
+    """The maps' C yardstick (mujoco.rollout of the adapter's world) runs and times something."""
+    from freebody.tools.bench.maps import rollout_step
+
+    assert _positive(rollout_step(100)())
+
+
+def test_the_removed_batched_module_stays_removed():
+    assert importlib.util.find_spec("freebody.reference_impl.batched") is None
+
+
 # --- the command line ---------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("option", [["--repeats", "0"], ["--rss-steps", "-1"], ["--suite-repeats", "0"]])
-def test_bad_numbers_are_one_line_input_errors(capsys, option):
+@pytest.mark.parametrize("option", [["--repeats", "0"], ["--rss-steps", "-1"], ["--part", "nope"]])
+def test_bad_options_are_one_line_input_errors(capsys, option):
     with pytest.raises(SystemExit) as e:
         main(["bench", "--quick", *option])
     assert e.value.code == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and option[0] in err
+    assert err.count("\n") <= 2 and option[0] in err
+
+
+def test_the_parser_knows_every_part():
+    from freebody.cli.bench_cmd import PARTS
+    assert PARTS == C.PARTS
 
 
 def test_quick_and_full_configurations():
     quick, full = bench.BenchConfig.make(quick=True), bench.BenchConfig.make(quick=False)
-    assert quick.suite_cases == QUICK_SUITE_CASES and full.suite_cases == tuple(PINNED_SUITE_CASES)
-    assert (quick.rss_steps, full.rss_steps) == (bench.QUICK_RSS_STEPS, bench.DEFAULT_RSS_STEPS)
-    assert (quick.suite_repeats, full.suite_repeats) == (1, 3) and full.repeats == 7
-    assert bench.BenchConfig.make(quick=False, rss_steps=0, repeats=2, suite_repeats=1) == \
-        bench.BenchConfig(**{**vars(full), "rss_steps": 0, "repeats": 2, "suite_repeats": 1})
+    assert quick.suite_cases == C.QUICK_SUITE_CASES and full.suite_cases == ()
+    assert (quick.rss_steps, full.rss_steps) == (C.QUICK_RSS_STEPS, C.TARGET_RSS_STEPS)
+    assert "compile" not in quick.parts and full.parts == C.PARTS
+    assert "compile" in bench.BenchConfig.make(quick=True, cold=True).parts
+    assert bench.BenchConfig.make(quick=False, parts=("truth", "maps")).parts == ("maps", "truth")
+    assert bench.BenchConfig.make(quick=False, rss_steps=0, repeats=2).rss_steps == 0
 
 
 @pytest.fixture(scope="module")
@@ -260,55 +339,23 @@ def quick_run(tmp_path_factory):
 
 @pytest.mark.slow
 def test_quick_bench_reports_every_figure(quick_run):
-    doc = quick_run[1]
-    assert doc["schema_version"] == SCHEMA_VERSION == 3
-    assert doc["quick"] is True
-    # the checks: a (2), b, c, d (2), e, one per measured engine; none failed to measure
-    keys = [c["key"] for c in doc["checks"]]
-    assert keys[:7] == ["a", "a", "b", "c", "d", "d", "e"]
-    assert keys.count("1") == len(doc["overhead_ratio"]) and len(keys) == 7 + keys.count("1")
-    for c in doc["checks"]:
-        assert c["status"] in ("PASS", "MISS", "n/a")
-        assert c["status"] == {True: "PASS", False: "MISS", None: "n/a"}[c["passed"]]
-    if is_available("mujoco"):
-        for c in doc["checks"]:
-            if c["key"] in "ab":
-                assert _positive(c["value"]) or c["key"] == "b", c  # b may be negative: noise
-                assert c["status"] != "n/a", c
-    # the quick suite is not the pinned one: measured, not judged
-    assert [c["status"] for c in doc["checks"] if c["key"] in "cd"] == ["n/a"] * 3
-    assert doc["suite_runs"] == 60 and doc["suite_pinned_differences"] == []
-    for key in ("suite_serial_s", "suite_parallel_s", "suite_trajectories_bytes",
-                "suite_report_html_bytes"):
-        assert _positive(doc[key]), key
-    # a: every reference map, b: the long run, e: the RSS run
-    assert set(doc["reference_map_step_s"]) == set(INTEGRATORS)
-    assert all(_positive(s) for s in doc["reference_map_step_s"].values())
-    if is_available("mujoco"):
-        assert doc["long_run_steps"] == 50000 and doc["short_run_steps"] == 10
-        for key in ("long_run_s", "short_run_s", "long_run_bare_s", "rss_bytes", "short_run_rss_bytes"):
-            assert _positive(doc[key]), key
-        assert doc["rss_steps"] == bench.QUICK_RSS_STEPS
-    # the figures of schema 1 are still there
-    assert set(doc["engines"]) == set(engine_names())
-    for engine in engine_names():
-        assert (engine in doc["overhead_ratio"]) != (engine in doc["skipped"])
-        if engine in doc["overhead_ratio"]:
-            for key in ("bare_step_s", "freebody_step_s"):
-                assert _positive(doc["engine_step_s"][engine][key])
-    if "mujoco" in doc["overhead_ratio"]:
-        for name in ENGINE_EQUIVALENT_MAPS:
-            assert _positive(doc["reference_map_speedup_vs_mujoco"][name])
-    # schema 3: the batched part of schema 2 is gone
-    assert not {"reference_body_step_s", "mujoco_body_step_s", "batch_steps"} & set(doc)
-
-
-@pytest.mark.slow
-def test_bench_json_prints_one_object_and_the_text_summary_renders_it(quick_run):
     stdout, doc = quick_run
     assert json.loads(stdout) == doc
+    assert doc["schema_version"] == 4 and doc["quick"] is True
+    assert [c["key"] for c in doc["checks"]][:21] == (
+        ["run"] * 2 + ["suite"] * 2 + ["compile", "truth"] + ["maps"] * 8 + ["sweep"] * 2
+        + ["report"] + ["output"] * 3 + ["rss"])
+    for c in doc["checks"]:
+        assert c["status"] == {True: "PASS", False: "MISS", None: "n/a"}[c["passed"]]
+    assert not [k for k in doc if k.endswith("_note") and "failed" in str(doc[k])], doc
+    assert _positive(doc["truth_cpu_s"]) and _positive(doc["truth_yardstick_cpu_s"])
+    assert set(doc["maps_step_s"]) == set(INTEGRATORS)
+    if is_available("mujoco"):
+        for key in ("overhead_one_run_cpu_s", "overhead_n_runs_cpu_s", "maps_mj_step_s",
+                    "maps_rollout_step_s", "sweep_jobs1_wall_s", "sweep_rollout_wall_s", "rss_bytes",
+                    "suite_cold_wall_s", "suite_warm_wall_s", "suite_report_wall_s",
+                    "suite_nomjx_stepping_s", "suite_trajectories_bytes"):
+            assert _positive(doc[key]), key
+        assert doc["overhead_n_runs"] == len(C.QUICK_OVERHEAD_CASES) * 5 and doc["rss_steps"] == C.QUICK_RSS_STEPS
     text = bench.format_text(doc)
-    for part in ("reference maps, one body", "suite wall time", "peak RSS", "engine loop overhead"):
-        assert part in text
-    assert "batched" not in text
     assert text.count("PASS") + text.count("MISS") + text.count("n/a") >= len(doc["checks"])
