@@ -421,9 +421,33 @@ def install_hint(name: str) -> str:
     return registry()[base_engine(name)].install_hint
 
 
+# The entry-point scan of this process (importlib.metadata reads every installed distribution's
+# metadata: tens of ms), kept with what it depends on: the scanning function (a test may replace
+# it) and the import path (a plug-in's folder added to sys.path joins the registry).
+_entry_point_scan: tuple[object, tuple[str, ...], dict[str, EngineEntry]] | None = None
+
+
+def reset_registry() -> None:
+    """Forget this process's entry-point scan: the next :func:`registry` scans again (for tests
+    that install or fake a plug-in; a change of ``sys.path`` or of
+    ``importlib.metadata.entry_points`` is seen without it)."""
+    global _entry_point_scan
+    _entry_point_scan = None
+
+
 def _entry_point_engines() -> dict[str, EngineEntry]:
+    """The engines of the :data:`ENTRY_POINT_GROUP` entry points: scanned once per process (and
+    again after :func:`reset_registry`, a change of ``sys.path`` or of the scanning function)."""
+    global _entry_point_scan
+    scan, path = importlib.metadata.entry_points, tuple(sys.path)
+    if _entry_point_scan is None or _entry_point_scan[0] is not scan or _entry_point_scan[1] != path:
+        _entry_point_scan = (scan, path, _scan_entry_points(scan))
+    return dict(_entry_point_scan[2])
+
+
+def _scan_entry_points(scan) -> dict[str, EngineEntry]:
     found = {}
-    for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP):
+    for ep in scan(group=ENTRY_POINT_GROUP):
         module, _, cls = ep.value.partition(":")
         dist = getattr(ep, "dist", None)
         hint = f"pip install {dist.name}" if dist is not None else f"install the package of {module}"

@@ -50,11 +50,17 @@ import warnings  # noqa: E402
 from ..errors import InputError, printable  # noqa: E402
 
 
+_COMMANDS: dict[str, object] = {}  # this process's subcommand modules, found once (:func:`_commands`)
+
+
 def _commands() -> dict[str, object]:
-    """Subcommand modules (``*_cmd``) of this package, in their ORDER."""
-    mods = [importlib.import_module(f"{__name__}.{m.name}") for m in pkgutil.iter_modules(__path__)
-            if m.name.endswith("_cmd")]
-    return {m.__name__.rsplit(".", 1)[-1][:-4]: m for m in sorted(mods, key=lambda m: m.ORDER)}
+    """Subcommand modules (``*_cmd``) of this package, in their ORDER.  Each is cheap to import:
+    what a command runs is imported by its ``run`` (tests/test_fixed_costs.py checks it)."""
+    if not _COMMANDS:
+        mods = [importlib.import_module(f"{__name__}.{m.name}") for m in pkgutil.iter_modules(__path__)
+                if m.name.endswith("_cmd")]
+        _COMMANDS.update((m.__name__.rsplit(".", 1)[-1][:-4], m) for m in sorted(mods, key=lambda m: m.ORDER))
+    return dict(_COMMANDS)
 
 
 class _Parser(argparse.ArgumentParser):

@@ -5,9 +5,6 @@ ORDER = 10
 
 import textwrap
 
-from ..input.casefile import bundled_case_paths, load_case
-from ..reference_impl.truth import truth_kind
-
 
 def add_parser(sub) -> None:
     p = sub.add_parser("list", help="list the bundled cases")
@@ -15,6 +12,9 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    from ..input.casefile import bundled_case_paths, load_case
+    from ..reference_impl.truth import truth_kind
+
     rows = []
     for name in bundled_case_paths():
         pb = load_case(name)

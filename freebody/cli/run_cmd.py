@@ -3,12 +3,8 @@ from __future__ import annotations
 
 ORDER = 20
 
-from ..errors import printable
-from ..input.casefile import bundled_case_paths, check_run_lengths, load_case
-from ..run import Status, expand, select_engines
-from ..run.suite import run_specs
-from ..results.outdir import REPORTS, check_files, out_folder, output_lock
-from ..report.summary import summary_table, summary_width, terminal_summary, where_to_look
+# what the command runs is imported by run(): building the parser (every command's, for any
+# command) imports none of it
 from .argtypes import (positive_float as _positive_float, positive_int as _positive_int,
                        save_interval as _save_interval, timeout_seconds as _timeout_seconds)
 
@@ -76,6 +72,14 @@ def add_parser(sub) -> None:
 
 
 def run(args) -> int:
+    from ..errors import printable
+    from ..input.casefile import bundled_case_paths, check_run_lengths, load_case
+    from ..run.matrix import expand, select_engines
+    from ..run.records import Status
+    from ..run.suite import run_specs
+    from ..results.outdir import REPORTS, check_files, out_folder, output_lock
+    from ..report.summary import summary_table, summary_width, terminal_summary, where_to_look
+
     names = args.cases or list(bundled_case_paths())
     problems = [load_case(n) for n in names]
     check_run_lengths(problems, args.dt, args.duration)  # at most MAX_STEPS_PER_RUN steps a run

@@ -1,0 +1,89 @@
+"""Fixed costs (issue 29 item 1): plug-ins are discovered once per process, and the command line
+knows every command without importing what the commands run.  Behaviour only: the CPU figures
+are ``freebody bench``'s."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from freebody.adapters import base
+
+
+class _EntryPoint:
+    name = "countedplug"
+    value = "countedplug_adapter:PlugAdapter"
+
+
+@pytest.fixture
+def counted_scan(monkeypatch):
+    """``importlib.metadata.entry_points`` replaced by one that counts its calls (a fresh scan)."""
+    calls = []
+
+    def entry_points(group):
+        calls.append(group)
+        return [_EntryPoint()] if group == base.ENTRY_POINT_GROUP else []
+
+    monkeypatch.setattr(base.importlib.metadata, "entry_points", entry_points)
+    yield calls
+    base.reset_registry()
+
+
+def test_entry_points_are_scanned_once_per_process(counted_scan):
+    for _ in range(3):
+        assert "countedplug" in base.registry()
+        assert "countedplug" in base.engine_names() and "countedplug" in base.default_engine_names()
+        assert base.base_engine("CountedPlug") == "countedplug"
+        assert base.install_hint("countedplug") == "install the package of countedplug_adapter"
+    assert counted_scan == [base.ENTRY_POINT_GROUP]
+
+
+def test_reset_and_a_new_import_path_scan_again(counted_scan, tmp_path, monkeypatch):
+    base.registry()
+    base.reset_registry()
+    base.registry()
+    assert len(counted_scan) == 2
+    monkeypatch.syspath_prepend(str(tmp_path))  # a plug-in's folder joins the import path
+    base.registry()
+    base.registry()
+    assert len(counted_scan) == 3
+
+
+def test_the_registry_is_a_fresh_dict_each_call(counted_scan):
+    """A caller that edits what registry() returns does not edit the cache (nor ENGINES)."""
+    base.registry().pop("countedplug")
+    base.registry()["mujoco"] = None
+    assert "countedplug" in base.registry() and base.registry()["mujoco"] is base.ENGINES["mujoco"]
+
+
+def test_built_in_entries_are_read_at_each_call(counted_scan, monkeypatch):
+    """A test's registry entry (monkeypatch.setitem(ENGINES, ...)) is seen without a reset."""
+    base.registry()
+    monkeypatch.setitem(base.ENGINES, "extra", base.ENGINES["reference"])
+    assert "extra" in base.registry() and len(counted_scan) == 1
+
+
+# what no command's parser needs: the modules that run, judge, write or render (numpy is allowed:
+# `freebody inertia --help` lists reference_impl.massprops.SIZE_DOC, and every run needs numpy)
+RUN_TIME_MODULES = ("scipy", "numba", "mujoco", "matplotlib", "freebody.run", "freebody.results",
+                    "freebody.report", "freebody.input", "freebody.reference_impl.problem",
+                    "freebody.adapters.base")
+
+
+def test_the_parser_imports_nothing_a_command_runs():
+    code = ("import sys; from freebody.cli import build_parser; build_parser(); "
+            f"print(sorted(m for m in {RUN_TIME_MODULES!r} if m in sys.modules))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]"
+
+
+def test_every_command_is_in_the_parser_with_its_own_help():
+    from freebody.cli import _commands, build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert list(sub.choices) == [name.replace("_", "-") for name in _commands()]
+    for name, p in sub.choices.items():
+        assert p.format_help().startswith(f"usage: freebody {name}"), name
