@@ -312,7 +312,31 @@ class TruthCache:
         if key not in self._cache:
             q = self.orientation(problem, integrator, dt, steps, load_sampling)
             self._cache[key] = roundoff_spread(problem, integrator, dt, steps, precision, q,
-                                               load_sampling=load_sampling)
+                                               load_sampling=load_sampling,
+                                               starts=self.perturbed_starts(problem, precision))
+        return self._cache[key]
+
+    def perturbed_starts(self, problem: Problem, precision: str = "float64") -> tuple[Problem, ...]:
+        """The case's :func:`perturbed_starts`, built once (every map's spread starts from them)."""
+        key = (id(problem), problem.name, "perturbed-starts", precision)
+        if key not in self._cache:
+            self._cache[key] = perturbed_starts(problem, precision)
+        return self._cache[key]
+
+    def map_piece(self, problem: Problem, integrator: str, dt: float, steps: int, precision: str = "float64",
+                  load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> "MapPiece":
+        """The map's whole run as identification compares it (:class:`MapPiece`: q and round-off
+        level), prepared once from :meth:`orientation` and :meth:`roundoff` and shared by every run
+        of the same (case, dt, steps, precision, load sampling); one object per variant of the map
+        (:func:`map_load_sampling`), however the sampling was spelt."""
+        key = (id(problem), problem.name, dt, steps, integrator, "piece", precision, load_sampling)
+        if key not in self._cache:
+            canonical = key[:-1] + (map_load_sampling(problem, integrator, load_sampling),)
+            if canonical not in self._cache:
+                self._cache[canonical] = map_piece(
+                    self.orientation(problem, integrator, dt, steps, load_sampling),
+                    self.roundoff(problem, integrator, dt, steps, precision, load_sampling), precision)
+            self._cache[key] = self._cache[canonical]
         return self._cache[key]
 
     def _simulate_map(self, problem: Problem, integrator: str, dt: float, steps: int,
@@ -321,13 +345,12 @@ class TruthCache:
 
 
 def cached_map_pieces(spec: RunSpec, cache: TruthCache) -> Callable[[str], Iterator]:
-    """The reference maps of a run judged whole: each map's q and round-off spread, whole, from
-    the cache (computed once per (case, dt, steps) group)."""
+    """The reference maps of a run judged whole: each map whole, as one :class:`MapPiece` from the
+    cache (prepared once per (case, dt, steps, precision, load sampling), shared by the group's runs)."""
     sampling = identification_sampling(spec)
 
     def pieces(name: str):
-        yield (cache.orientation(spec.problem, name, spec.dt, spec.steps, sampling),
-               cache.roundoff(spec.problem, name, spec.dt, spec.steps, spec.precision, sampling))
+        yield cache.map_piece(spec.problem, name, spec.dt, spec.steps, spec.precision, sampling)
     return pieces
 
 
@@ -340,8 +363,9 @@ def stepped_map_pieces(spec: RunSpec, chunk_steps: int) -> Callable[[str], Itera
     pb, dt, steps = spec.problem, spec.dt, spec.steps
     sampling = identification_sampling(spec)
 
+    starts = perturbed_starts(pb, spec.precision)  # every map's copies start from the same four
+
     def pieces(name: str):
-        starts = [perturbed_start(pb, spec.precision, signs) for signs in ULP_SIGN_PATTERNS]
         others = [map_orientations(pb_u, name, dt, steps, chunk_steps, sampling) for pb_u in starts]
         for q in map_orientations(pb, name, dt, steps, chunk_steps, sampling):
             spread = np.zeros(len(q))
@@ -490,15 +514,21 @@ def perturbed_start(pb: Problem, precision: str = "float64",
     return dataclasses.replace(pb, initial=start, body=body)
 
 
+def perturbed_starts(pb: Problem, precision: str = "float64") -> tuple[Problem, ...]:
+    """The case's :func:`perturbed_start` in each direction of :data:`ULP_SIGN_PATTERNS`, in that order."""
+    return tuple(perturbed_start(pb, precision, signs) for signs in ULP_SIGN_PATTERNS)
+
+
 def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precision: str,
-                    q_ref: np.ndarray, load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> np.ndarray:
+                    q_ref: np.ndarray, load_sampling: str = LOAD_SAMPLING_PER_STAGE,
+                    starts: tuple[Problem, ...] | None = None) -> np.ndarray:
     """(steps + 1,) rad: the orientation of the map ``integrator`` (its run's q_ref (steps + 1, 4))
     against the same map from each of the :func:`perturbed_start` of :data:`ULP_SIGN_PATTERNS`
     (same dt, same load steps), the largest sample by sample.  A sample where either is not finite
-    is inf (a perturbed copy blew up: the map can identify nothing there, see :class:`Identification`)."""
+    is inf (a perturbed copy blew up: the map can identify nothing there, see :class:`Identification`).
+    ``starts``: those starts, :func:`perturbed_starts` of (pb, precision), if built already."""
     spread = np.zeros(len(q_ref))
-    for signs in ULP_SIGN_PATTERNS:
-        pb_u = perturbed_start(pb, precision, signs)
+    for pb_u in perturbed_starts(pb, precision) if starts is None else starts:
         other = _maps.simulate(pb_u, integrator, dt, steps,  # not reference_simulate: no map the cache holds
                                load_sampling=load_sampling)
         spread = _spread_update(spread, q_ref, other.quaternion_wxyz)
@@ -607,6 +637,50 @@ def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCac
     return ident.result()
 
 
+@dataclasses.dataclass(frozen=True)
+class MapPiece:
+    """A candidate map over samples k0 .. k0 + N - 1 with what identification derives from the map
+    alone, the same for every run compared with it: for a run judged whole, prepared once per
+    group by :meth:`TruthCache.map_piece` and shared by every engine run of the group; for a run
+    judged in chunks, derived chunk by chunk by :class:`Identification`.
+
+    q : (N, 4) wxyz, body -> world: the map's orientations.
+    level : (N,) rad: its round-off level at each sample (:func:`roundoff_level` of its spread's
+        running maximum and its rounding drift), at most SCHEME_ROUNDOFF_LEVEL_MAX_RAD; the samples
+        where it is below that cap are those where the map can tell anything.
+    raw : (N,) rad: the level without SCHEME_ROUNDOFF_FACTOR (max(spread's running maximum, drift,
+        floor), at most the cap): the margin of "no other map nearer by more than round-off".
+    spread_max, theta : the spread's running maximum and the angle the map turned through (rad), at
+        its last sample: where the next piece starts.
+    """
+
+    q: np.ndarray
+    level: np.ndarray
+    raw: np.ndarray
+    spread_max: float
+    theta: float
+
+
+def map_piece(q_ref: np.ndarray, spread: np.ndarray, precision: str, k0: int = 0, spread_max: float = 0.0,
+              theta0: float = 0.0, q_before: np.ndarray | None = None) -> MapPiece:
+    """The :class:`MapPiece` of a map's samples k0 .. k0 + N - 1: q_ref (N, 4), its round-off
+    spread (N,) rad there (:func:`roundoff_spread`); ``spread_max``, ``theta0``, ``q_before``: the
+    running state after the samples before these (0, 0, None for the first)."""
+    if len(spread):
+        base = np.maximum(np.maximum.accumulate(spread), spread_max)
+        spread_max = float(base[-1])
+    else:
+        base = np.zeros(0)
+    drift, theta = rounding_drift(q_ref, k0, theta0, q_before, precision)
+    n = min(len(base), len(drift))
+    base, drift = base[:n], drift[:n]
+    # level < cap wherever max(factor x base, drift) < cap: the floor is below the cap
+    level = roundoff_level(base, drift=drift)
+    raw = np.minimum(np.maximum(np.maximum(base, drift), tol.SCHEME_ROUNDOFF_FLOOR_RAD),
+                     tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD)
+    return MapPiece(q_ref, level, raw, spread_max, theta)
+
+
 class Identification:
     """Scheme identification (:func:`identify`) of a run taken in chunk by chunk: per candidate
     map, the running maxima of its difference and of the difference over its round-off level
@@ -633,38 +707,20 @@ class Identification:
     def update(self, q: np.ndarray) -> None:
         """The run's orientations q (m, 4) of its next m samples."""
         n, k0 = len(q), self.n
-        refs, bases, drifts, dists = {}, {}, {}, {}
-        for name in self.names:
-            q_ref, spread = next(self.pieces[name])
-            refs[name] = q_ref
-            if len(spread):
-                bases[name] = np.maximum(np.maximum.accumulate(spread), self.spread_max[name])
-                self.spread_max[name] = float(bases[name][-1])
-            else:
-                bases[name] = np.zeros(0)
-            drifts[name], self.theta[name] = rounding_drift(q_ref, k0, self.theta[name], self.last_q.get(name),
-                                                            self.spec.precision)
-            if len(q_ref):
-                self.last_q[name] = q_ref[-1]
-            if len(q_ref) >= n:
-                with np.errstate(invalid="ignore"):
-                    dists[name] = _angle(q_ref[:n], q)
         kept = {}
         for name in self.names:
-            base = bases[name][:n]
-            level = roundoff_level(base, drift=drifts[name][:n])
-            raw = np.maximum(np.maximum(base, drifts[name][:n]), tol.SCHEME_ROUNDOFF_FLOOR_RAD)
+            piece = self._next_piece(name, k0)
             if n:
-                self.levels[name] = float(level[-1])
-                self.roundoff[name] = float(min(raw[-1], tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD))
-            d = dists.get(name)
-            if d is None:  # the map has fewer samples than the run: nothing to compare
+                self.levels[name] = float(piece.level[:n][-1])
+                self.roundoff[name] = float(piece.raw[:n][-1])
+            if len(piece.q) < n:  # the map has fewer samples than the run: nothing to compare
                 self.diffs[name] = self.ratios[name] = None
                 continue
+            level = piece.level[:n]
             with np.errstate(invalid="ignore"):
+                d = _angle(piece.q[:n], q)
                 # the samples where the map can tell anything: its level below the cap, both finite
-                open_ = (np.maximum(tol.SCHEME_ROUNDOFF_FACTOR * base, drifts[name][:n])
-                         < tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD) & np.isfinite(d)
+                open_ = (level < tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD) & np.isfinite(d)
             if not np.all(open_):
                 self.closed[name] = True
             if self.diffs[name] is not None:
@@ -674,11 +730,24 @@ class Identification:
             if np.any(open_):
                 self.ratios[name] = max(self.ratios[name], float(np.max(d[open_] / level[open_])))
             if self.ratios[name] <= 1.0 and not self.closed[name]:
-                kept[name] = (refs[name][:n], level)
+                kept[name] = (piece.q[:n], level)
         for a, b in self.within:  # the tie: only maps that still reproduce the run matter
             if self.within[(a, b)] and a in kept and b in kept:
                 self.within[(a, b)] = _within(kept[a], kept[b])
         self.n += n
+
+    def _next_piece(self, name: str, k0: int) -> "MapPiece":
+        """The map's next piece as a :class:`MapPiece` (one the cache prepared, or one derived here
+        from the (q, spread) a chunked run's pieces yield), and the running state after it."""
+        piece = next(self.pieces[name])
+        if not isinstance(piece, MapPiece):
+            q_ref, spread = piece
+            piece = map_piece(q_ref, spread, self.spec.precision, k0, self.spread_max[name],
+                              self.theta[name], self.last_q.get(name))
+        self.spread_max[name], self.theta[name] = piece.spread_max, piece.theta
+        if len(piece.q):
+            self.last_q[name] = piece.q[-1]
+        return piece
 
     def result(self) -> dict:
         ratios, diffs, levels = self.ratios, self.diffs, self.levels
