@@ -46,23 +46,21 @@ def rollout_of_bodies(count: int) -> tuple[float, float]:
 
 
 def sweep(config: BenchConfig, progress: bool = False) -> dict:
-    """The sweep command with --jobs 1 and --jobs 2 (each in a fresh output folder) and the
-    rollout of the same bodies, interleaved ``min(repeats, 3)`` times (the sweeps are long; once
-    with --quick);
-    medians of wall and CPU seconds."""
+    """The sweep command with --jobs 1 and --jobs 2, once each (they are long; each in a fresh
+    output folder), and the rollout of the same bodies before each and ``repeats - 2`` times more
+    (at least once); the rollout's median wall and CPU seconds."""
     from ...adapters.base import BENCH_YARDSTICK, is_available
 
     if not is_available(BENCH_YARDSTICK):
         return {"sweep_note": f"{BENCH_YARDSTICK} not installed"}
     n = config.sweep_count
     runs: dict[str, list] = {"1": [], "2": [], "rollout": []}
-    for r in range(min(config.repeats, 1 if config.quick else 3)):
-        for jobs in ("1", "2"):
-            with tempfile.TemporaryDirectory(prefix="freebody-bench-") as tmp:
-                runs[jobs].append(run_ok(sweep_command(n, int(jobs), tmp), f"freebody sweep --jobs {jobs}"))
+    for jobs in ("1", "2"):
         runs["rollout"].append(rollout_of_bodies(n))
-        log(f"sweep repeat {r + 1}: --jobs 1 {runs['1'][-1].wall_s:.1f} s, --jobs 2 "
-            f"{runs['2'][-1].wall_s:.1f} s, rollout {runs['rollout'][-1][0] * 1e3:.1f} ms", progress)
+        with tempfile.TemporaryDirectory(prefix="freebody-bench-") as tmp:
+            runs[jobs].append(run_ok(sweep_command(n, int(jobs), tmp), f"freebody sweep --jobs {jobs}"))
+        log(f"sweep --jobs {jobs}: {runs[jobs][-1].wall_s:.1f} s", progress)
+    runs["rollout"] += [rollout_of_bodies(n) for _ in range(max(config.repeats - 2, 1))]
     steps = int(round(SWEEP_DURATION_S / SWEEP_DT))
     w1, w2 = median([c.wall_s for c in runs["1"]]), median([c.wall_s for c in runs["2"]])
     roll_wall, roll_cpu = median([x[0] for x in runs["rollout"]]), median([x[1] for x in runs["rollout"]])

@@ -12,8 +12,12 @@ from .core import MB
 def _num(v: float, unit: str, limit: bool = False) -> str:
     """A measured figure (or with ``limit``, a target) with its unit, to a sensible precision."""
     if limit:
+        if unit == "x" and 0 < v < 1:
+            return f"1/{1 / v:g}"
         return f"{v:g}x" if unit == "x" else f"{v:.3g} {unit}" if abs(v) < 100 else f"{v:.0f} {unit}"
     if unit == "x":
+        if 0 < v < 0.1:
+            return f"1/{1 / v:.0f}"
         return f"{v:.2f}x" if abs(v) < 10 else f"{v:.1f}x"
     return f"{v:.2f} {unit}" if abs(v) < 10 else f"{v:.1f} {unit}" if abs(v) < 1000 else f"{v:.0f} {unit}"
 
