@@ -17,7 +17,7 @@ import numpy as np
 from typing import Iterator
 
 from .conventions import Trajectory
-from .problem import Problem
+from .problem import Load, Problem
 from .rotations import matrix_from_quat, quat_multiply, quat_normalize
 
 
@@ -93,21 +93,55 @@ def _closed_form_samples(problem: Problem, dt: float, k0: int, k1: int) -> Traje
 
 
 def numerical_trajectory(problem: Problem, dt: float, steps: int,
-                         rtol: float = NUMERICAL_RTOL, atol: float = NUMERICAL_ATOL) -> Trajectory:
+                         rtol: float = NUMERICAL_RTOL, atol: float = NUMERICAL_ATOL,
+                         compiled: bool = True) -> Trajectory:
     """High-accuracy integration in body-frame variables, restarted at every load switch.
 
     Variables y = (x (3) m world, v (3) m/s world, q (4) wxyz body -> world, w_b (3) rad/s body).
     Euler's equations I w_b' = tau_b - w_b x I w_b; q' = 1/2 q (0, w_b); x' = v; v' = f/M + g.
+    ``compiled``: the right-hand side :func:`truth_rhs.body_frame_rhs` (numba), else the readable
+    numpy one (:func:`_numpy_rhs`); the same equations, equal to rounding.
     """
-    return next(_numerical_pieces(problem, dt, steps, [(0, steps)], rtol, atol))
+    return next(_numerical_pieces(problem, dt, steps, [(0, steps)], rtol, atol, compiled))
+
+
+def _numpy_rhs(problem: Problem, loads: tuple[Load, ...]):
+    """The right-hand side ``rhs(t, y) -> dy/dt`` (13,) of :func:`numerical_trajectory` on a segment
+    where ``loads`` act, in numpy: the readable form of :func:`truth_rhs.body_frame_rhs`."""
+    body = problem.body
+    M, I_b, I_inv, g = body.mass, body.I_body, body.I_body_inv, problem.gravity
+
+    def rhs(_t, y):
+        x, v, q, w_b = y[0:3], y[3:6], y[6:10], y[10:13]
+        R = matrix_from_quat(q)
+        f, tau = problem.wrench(loads, x, R) if loads else (np.zeros(3), np.zeros(3))
+        dw = I_inv @ (R.T @ tau - np.cross(w_b, I_b @ w_b))
+        dq = 0.5 * quat_multiply(q, np.r_[0.0, w_b])
+        return np.concatenate([v, f / M + g, dq, dw])
+    return rhs
+
+
+def _compiled_rhs(problem: Problem):
+    """``rhs_of(loads)``: the compiled right-hand side ``rhs(t, y)`` of a segment where ``loads``
+    act (:func:`truth_rhs.body_frame_rhs`, the body's and the loads' arrays bound)."""
+    from .truth_rhs import body_array, body_frame_rhs, loads_array
+
+    b = problem.body
+    body = body_array(b.mass, b.I_body, b.I_body_inv, problem.gravity)
+
+    def rhs_of(loads):
+        L = loads_array(loads)
+        return lambda _t, y: body_frame_rhs(y, body, L)
+    return rhs_of
 
 
 def _numerical_pieces(problem: Problem, dt: float, steps: int, bounds: list[tuple[int, int]],
-                      rtol: float = NUMERICAL_RTOL, atol: float = NUMERICAL_ATOL) -> Iterator[Trajectory]:
+                      rtol: float = NUMERICAL_RTOL, atol: float = NUMERICAL_ATOL,
+                      compiled: bool = True) -> Iterator[Trajectory]:
     """:func:`numerical_trajectory` over the pieces ``bounds`` (:func:`piece_bounds`), each
     integrated from the previous one's end state, restarted at the load switches inside it."""
-    body, init = problem.body, problem.initial
-    M, I_b, I_inv, g = body.mass, body.I_body, body.I_body_inv, problem.gravity
+    init = problem.initial
+    rhs_of = _compiled_rhs(problem) if compiled else (lambda loads: _numpy_rhs(problem, loads))
     q0 = quat_normalize(init.quaternion_wxyz)
     w_b0 = matrix_from_quat(q0).T @ init.angular_velocity
     y = np.concatenate([init.position, init.linear_velocity, q0, w_b0])
@@ -117,16 +151,7 @@ def _numerical_pieces(problem: Problem, dt: float, steps: int, bounds: list[tupl
         Y[0] = y
         cuts = [s0, *(k for k in switches if s0 < k < s1), s1]
         for k0, k1 in zip(cuts[:-1], cuts[1:]):
-            loads = problem.active_loads(k0, dt)
-
-            def rhs(_t, y, loads=loads):
-                x, v, q, w_b = y[0:3], y[3:6], y[6:10], y[10:13]
-                R = matrix_from_quat(q)
-                f, tau = problem.wrench(loads, x, R) if loads else (np.zeros(3), np.zeros(3))
-                dw = I_inv @ (R.T @ tau - np.cross(w_b, I_b @ w_b))
-                dq = 0.5 * quat_multiply(q, np.r_[0.0, w_b])
-                return np.concatenate([v, f / M + g, dq, dw])
-
+            rhs = rhs_of(problem.active_loads(k0, dt))
             t_eval = np.arange(k0, k1 + 1) * dt
             sol = solve_ivp(rhs, (t_eval[0], t_eval[-1]), Y[k0 - s0], method="DOP853", t_eval=t_eval,
                             rtol=rtol, atol=atol)
