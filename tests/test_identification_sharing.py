@@ -114,3 +114,30 @@ def test_a_worker_reading_the_store_computes_no_map(tmp_path, counted):
     b = identify(pb, q, spec, second)
     assert counted["simulate"] == n
     assert a == b
+
+
+def test_a_worker_waits_for_the_map_another_is_computing(tmp_path, counted):
+    """While one worker holds a map's claim (computing it), another that needs the map waits for it
+    and reads what the first wrote, instead of computing it a second time."""
+    import threading
+
+    from freebody.run import sharedcache
+
+    pb = load_case(CASE)
+    name = "rk4-body-exp"
+    first, second = GroupTruthCache(tmp_path), GroupTruthCache(tmp_path)
+    for cache in (first, second):
+        cache.enter(pb, "p0", DT, STEPS)
+    path = first._path(pb, DT, STEPS, name)
+    got = {}
+    with sharedcache._claimed(path):
+        reader = threading.Thread(target=lambda: got.update(q=second.orientation(pb, name, DT, STEPS)))
+        reader.start()
+        reader.join(0.3)
+        assert reader.is_alive() and not got  # waiting for the claim
+        tr = integrators.simulate(pb, name, DT, STEPS)
+        sharedcache._save(path, tr)
+        n = counted["simulate"]
+    reader.join(10)
+    assert counted["simulate"] == n  # the waiting worker read the map, it did not run it
+    assert np.array_equal(got["q"], tr.quaternion_wxyz)

@@ -20,6 +20,7 @@ The numbers are the same whichever process computed them: results are identical 
 """
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +58,21 @@ def _load(path: Path) -> Trajectory | None:
             return Trajectory(*(z[f] for f in _FIELDS), orthonormality_error=ortho)
     except (OSError, ValueError, KeyError):  # unreadable: compute it again
         return None
+
+
+@contextlib.contextmanager
+def _claimed(path: Path | None):
+    """Hold an exclusive lock (flock) on ``path``'s ``.lock`` file for the block; None (no store):
+    no lock.  The first worker of a group to need a map or a spread computes it while the others
+    wait, then read it: each is computed once per suite, not once per worker that raced for it."""
+    if path is None:
+        yield
+        return
+    import fcntl
+
+    with open(path.with_name(path.name + ".lock"), "a") as f:  # closing it releases the lock
+        fcntl.flock(f, fcntl.LOCK_EX)
+        yield
 
 
 def _load_array(path: Path, name: str) -> np.ndarray | None:
@@ -114,12 +130,13 @@ class GroupTruthCache(TruthCache):
         key = full[:3] + (f"{name}.q",)
         if key not in self._memo:
             path = self._path(problem, dt, steps, name)
-            q = _load_array(path, "quaternion_wxyz") if path is not None and path.exists() else None
-            if q is None:
-                tr = self._simulate_map(problem, integrator, dt, steps, load_sampling)
-                if path is not None:
-                    _save(path, tr)
-                q = tr.quaternion_wxyz
+            with _claimed(path):
+                q = _load_array(path, "quaternion_wxyz") if path is not None and path.exists() else None
+                if q is None:
+                    tr = self._simulate_map(problem, integrator, dt, steps, load_sampling)
+                    if path is not None:
+                        _save(path, tr)
+                    q = tr.quaternion_wxyz
             self._memo[key] = q
         return self._memo[key]
 
@@ -132,11 +149,12 @@ class GroupTruthCache(TruthCache):
         if key in self._memo:
             return self._memo[key]
         path = self._path(problem, dt, steps, tag)
-        spread = _load_array(path, "spread") if path is not None and path.exists() else None
-        if spread is None:
-            spread = super().roundoff(problem, integrator, dt, steps, precision, load_sampling)
-            if path is not None:
-                write_npz_atomic(path, {"spread": spread}, compressed=False)
+        with _claimed(path):  # the map's lock is taken inside (orientation): always in this order
+            spread = _load_array(path, "spread") if path is not None and path.exists() else None
+            if spread is None:
+                spread = super().roundoff(problem, integrator, dt, steps, precision, load_sampling)
+                if path is not None:
+                    write_npz_atomic(path, {"spread": spread}, compressed=False)
         self._memo[key] = spread
         return spread
 
