@@ -359,3 +359,22 @@ def test_quick_bench_reports_every_figure(quick_run):
         assert doc["overhead_n_runs"] == len(C.QUICK_OVERHEAD_CASES) * 5 and doc["rss_steps"] == C.QUICK_RSS_STEPS
     text = bench.format_text(doc)
     assert text.count("PASS") + text.count("MISS") + text.count("n/a") >= len(doc["checks"])
+
+
+@pytest.mark.parametrize("argv, parts", [
+    (["--quick"], tuple(p for p in C.PARTS if p != "compile")),
+    (["--quick", "--cold"], C.PARTS),
+    (["--quick", "--no-suite"], tuple(p for p in C.PARTS if p not in ("compile", "suite"))),
+    (["--no-suite"], tuple(p for p in C.PARTS if p != "suite")),
+    (["--part", "truth", "--part", "maps"], ("maps", "truth")),
+])
+def test_options_select_the_parts(monkeypatch, capsys, argv, parts):
+    seen = []
+
+    def fake(config, progress=False):
+        seen.append(config)
+        return {"quick": config.quick, "repeats": config.repeats, "cores": 2, "created": "now"}
+    monkeypatch.setattr(bench, "run_bench", fake)
+    assert main(["bench", "--quiet", *argv]) == 0
+    assert seen[0].parts == parts
+    assert "0 PASS" in capsys.readouterr().out  # the text of the (empty) document

@@ -31,6 +31,8 @@ def add_parser(sub) -> None:
                         "empty numba and JAX caches")
     p.add_argument("--part", action="append", choices=PARTS, metavar="PART",
                    help=f"measure only these parts (repeatable): {', '.join(PARTS)}")
+    p.add_argument("--no-suite", action="store_true",
+                   help="every part but the suite (the longest: the default suite three times)")
     p.add_argument("--repeats", type=_positive_int, metavar="N",
                    help="repeats of every measurement but the suite's (default 5; 3 with --quick)")
     p.add_argument("--rss-steps", type=_nonnegative_int, metavar="N",
@@ -53,8 +55,12 @@ def run(args) -> int:
         print(json.dumps(doc, sort_keys=True, indent=1, allow_nan=False) if args.json else format_text(doc))
         return 0
     out = None if args.out is None else writable_file(args.out, "--out")  # before the measurements
+    parts = tuple(args.part) if args.part else None
+    if args.no_suite:
+        parts = tuple(p for p in (parts or PARTS) if p != "suite"
+                      and (p != "compile" or args.cold or not args.quick or args.part))
     config = BenchConfig.make(quick=args.quick, repeats=args.repeats, rss_steps=args.rss_steps,
-                              cold=args.cold, parts=tuple(args.part) if args.part else None)
+                              cold=args.cold, parts=parts)
     doc = run_bench(config, progress=not args.quiet)
     if out is not None:
         write_json_atomic(out, doc, what=f"--out {printable(args.out)}")
