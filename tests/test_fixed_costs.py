@@ -3,12 +3,16 @@ knows every command without importing what the commands run.  Behaviour only: th
 are ``freebody bench``'s."""
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+from enum import IntEnum, StrEnum
 
+import numpy as np
 import pytest
 
 from freebody.adapters import base
+from freebody.results.io import json_safe, json_text
 
 
 class _EntryPoint:
@@ -87,3 +91,27 @@ def test_every_command_is_in_the_parser_with_its_own_help():
     assert list(sub.choices) == [name.replace("_", "-") for name in _commands()]
     for name, p in sub.choices.items():
         assert p.format_help().startswith(f"usage: freebody {name}"), name
+
+
+class _Label(StrEnum):
+    OK = "ok"
+
+
+class _Level(IntEnum):
+    TWO = 2
+
+
+def test_json_text_is_json_dumps_of_json_safe_byte_for_byte():
+    """results.json's writer (one walk) writes exactly what json.dumps(json_safe(...), sort_keys,
+    indent 1) writes, for every kind of value a document holds, numpy's and non-finite ones too."""
+    rng = np.random.default_rng(29)
+    doc = {"runs": [{"metrics": dict(zip("abc", rng.normal(size=3))), "ok": True, "n": 3, "none": None,
+                     "status": _Label.OK, "level": _Level.TWO, "t": rng.normal(size=(2, 3)),
+                     "x": np.float32(0.1), "k": np.int64(-7), "b": np.bool_(False), "s": np.str_("é\n\"")}],
+           "odd": [float("nan"), float("inf"), -0.0, 5e-324, 1e300, 10**30, (), [], {}, (1.5, "a"),
+                   {2: "int key", "z": [[{}]]}, np.array([np.nan, 1.0]), np.float64(-np.inf)],
+           _Label.OK: "enum key", 3: "int key"}
+    assert json_text(doc) == json.dumps(json_safe(doc), sort_keys=True, indent=1, allow_nan=False)
+    for bad in ({"p": object()}, [{1, 2}]):
+        with pytest.raises(TypeError, match="is not JSON serializable"):
+            json_text(bad)
