@@ -72,7 +72,8 @@ def _doc(**over) -> dict:
         "truth_cpu_s": 0.006, "truth_yardstick_cpu_s": 0.003, "truth_case": "body_torque_spinup",
         "truth_steps": 2000,
         "maps_step_s": {name: 2e-7 for name in INTEGRATORS},
-        "maps_floor_step_s": {name: 1.5e-7 for name in INTEGRATORS},
+        "maps_steps": 1000, "maps_call_s": {name: 2e-4 for name in INTEGRATORS},
+        "maps_floor_call_s": {name: 1.5e-4 for name in INTEGRATORS},
         "maps_mj_step_s": 2.5e-6, "maps_rollout_step_s": 1.8e-6,
         "sweep_bodies": 200, "sweep_body_steps_per_s": 5000.0, "sweep_rollout_body_steps_per_s": 40000.0,
         "sweep_jobs_gain": 1.8, "sweep_jobs1_wall_s": 8.0, "sweep_jobs2_wall_s": 4.4,
@@ -104,7 +105,8 @@ def test_checks_miss_each_target():
                suite_nomjx_wall_s=150.0,                                   # 5x > 4x
                suite_warm_stepping_s={"mjx": 30.0, "mujoco": 12.0},        # 2.5x > 2x
                compile_cpu_s=26.0, truth_cpu_s=0.024,                      # 8x > 3x
-               maps_step_s={name: 6e-7 for name in INTEGRATORS},           # 4x floor, 4.2x mj_step
+               maps_step_s={name: 6e-7 for name in INTEGRATORS},           # 4.2x mj_step
+               maps_call_s={name: 6e-4 for name in INTEGRATORS},           # 4x floor
                sweep_body_steps_per_s=250.0, sweep_jobs_gain=1.1,
                suite_report_wall_s=40.0, suite_trajectories_bytes=56e6, suite_report_html_bytes=4.1e6,
                suite_report_md_bytes=1.17e6, rss_bytes=1.2e9)
@@ -155,16 +157,21 @@ def test_peak_rss_of_a_shorter_run_misses_over_the_limit_and_is_not_judged_under
 def test_missing_figures_are_not_applicable_with_the_reason():
     """A part not measured (or failed) leaves its figures out: its checks are n/a and say why."""
     doc = {k: v for k, v in _doc().items() if not k.startswith(("overhead_", "suite_", "truth_", "maps_floor"))}
+    doc["maps_floor_call_s"] = {"semi-implicit-explicit-gyro": 1.5e-4}  # a floor of one map only
     doc.update(overhead_note="mujoco not installed", suite_note="not measured (--part)",
-               truth_note="failed: RuntimeError: boom", maps_floor_note="no flat-loop floors yet")
+               truth_note="failed: RuntimeError: boom")
     rows = bench.checks(doc)
     for c in rows:
-        if c.key in ("run", "suite", "truth", "report", "output") or "flat loop" in c.label:
+        if c.key in ("run", "suite", "truth", "report", "output") or ("flat loop" in c.label and "explicit" not in c.label):
             assert c.status == "n/a" and c.value is None and c.note, c
     assert "mujoco not installed" in rows[0].note
     assert any("boom" in c.note for c in rows if c.key == "truth")
+    flat = [c for c in rows if "flat loop" in c.label]
+    assert flat[0].status == "PASS" and "no floor of rk4" in flat[2].note
     text = bench.format_text(doc)  # renders without the missing figures
-    assert "n/a" in text and "no flat-loop floors yet" in text
+    assert "n/a" in text and "no floor of rk4" in text
+    none = bench.checks(dict(doc, maps_floor_call_s={}, maps_floor_note="no flat-loop floors yet"))
+    assert all(c.status == "n/a" and "no flat-loop floors" in c.note for c in none if "flat loop" in c.label)
 
 
 def test_text_table_lists_every_check_with_its_status():

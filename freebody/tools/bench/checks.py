@@ -72,15 +72,19 @@ def truth_checks(doc: dict) -> list[Check]:
 
 
 def map_checks(doc: dict) -> list[Check]:
-    step, floors = doc.get("maps_step_s") or {}, doc.get("maps_floor_step_s") or {}
+    step, calls = doc.get("maps_step_s") or {}, doc.get("maps_call_s") or {}
+    floors = doc.get("maps_floor_call_s") or {}
     mj, roll = doc.get("maps_mj_step_s"), doc.get("maps_rollout_step_s")
+    n = doc.get("maps_steps")
     out = []
     for names, limit in ((ENGINE_EQUIVALENT_MAPS, TARGET_MAP_VS_FLOOR), (OTHER_FLOOR_MAPS, TARGET_OTHER_MAP_VS_FLOOR)):
         for name in names:
-            x = _ratio(step.get(name), floors.get(name))
+            x = _ratio(calls.get(name), floors.get(name))  # whole calls of n steps, as freebody run makes them
+            note = ("" if x else doc.get("maps_floor_note") or
+                    (f"no floor of {name} in reference_impl/floors.py (FLOORS)" if floors else _why(doc, "maps")))
             out.append(make_check("maps", f"{name} / its flat loop", x, "<=", limit, "x",
-                                  f"{_us(step.get(name))} vs {_us(floors.get(name))} a step" if x else "",
-                                  "" if x else doc.get("maps_floor_note") or _why(doc, "maps")))
+                                  f"{calls[name] * 1e3:.2f} vs {floors[name] * 1e3:.2f} ms for {n} steps"
+                                  if x else "", note))
     for name in ENGINE_EQUIVALENT_MAPS:
         x = _ratio(mj, step.get(name))
         r = _ratio(roll, step.get(name))

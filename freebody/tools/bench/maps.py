@@ -11,7 +11,7 @@ from typing import Callable
 import numpy as np
 
 from .config import CASE, DT, BenchConfig
-from .core import log, median, timed
+from .core import cpu_timed, log, median, timed
 
 
 class NoBareLoop(Exception):
@@ -21,7 +21,7 @@ class NoBareLoop(Exception):
 def yardstick_step(steps: int, integrator: str | None = None, case: str = CASE) -> Callable[[], float]:
     """A timer of the yardstick engine's bare loop (``BENCH_YARDSTICK``'s ``Adapter.bare_loop``:
     its own step in a Python loop and state copies) on the case's world, built afresh, untimed, on
-    every call: returns seconds per step.  integrator : the engine's (default: its first)."""
+    every call: returns CPU seconds per step.  integrator : the engine's (default: its first)."""
     from ...adapters.base import BENCH_YARDSTICK, load_adapter
     from ...input.casefile import load_case
 
@@ -34,7 +34,7 @@ def yardstick_step(steps: int, integrator: str | None = None, case: str = CASE) 
             loop = a.bare_loop(steps)
             if loop is None:
                 raise NoBareLoop(f"{BENCH_YARDSTICK} declares no bare loop")
-            return timed(loop) / steps
+            return cpu_timed(loop) / steps
         finally:
             a.close()
     return timer
@@ -42,7 +42,7 @@ def yardstick_step(steps: int, integrator: str | None = None, case: str = CASE) 
 
 def rollout_step(steps: int, case: str = CASE) -> Callable[[], float]:
     """A timer of ``mujoco.rollout`` (one model, one thread) stepping the case's MuJoCo world
-    (built by the adapter, untimed, on every call) for ``steps`` steps: seconds per step."""
+    (built by the adapter, untimed, on every call) for ``steps`` steps: CPU seconds per step."""
     from ...adapters.base import BENCH_YARDSTICK, load_adapter
     from ...input.casefile import load_case
 
@@ -51,14 +51,14 @@ def rollout_step(steps: int, case: str = CASE) -> Callable[[], float]:
     def timer() -> float:
         a = cls(problem, DT, cls.offered_integrators()[0])
         try:
-            return rollout_seconds([a.model], [a.data], steps) / steps
+            return rollout_seconds([a.model], [a.data], steps, cpu=True) / steps
         finally:
             a.close()
     return timer
 
 
-def rollout_seconds(models: list, datas: list, steps: int) -> float:
-    """Wall seconds of one ``mujoco.rollout.rollout`` of every model from its data's current state
+def rollout_seconds(models: list, datas: list, steps: int, cpu: bool = False) -> float:
+    """Wall (``cpu``: CPU) seconds of one ``mujoco.rollout.rollout`` of every model from its data's current state
     for ``steps`` steps, on one thread (one data), the output array allocated before the clock."""
     import mujoco
     from mujoco import rollout
@@ -70,7 +70,8 @@ def rollout_seconds(models: list, datas: list, steps: int) -> float:
         mujoco.mj_getState(m, d, state0[i], spec)
     out = np.empty((len(models), steps, size))  # (B, steps, nstate)
     with rollout.Rollout(nthread=0) as roller:
-        return timed(lambda: roller.rollout(models, [datas[0]], state0, nstep=steps, state=out))
+        clock = cpu_timed if cpu else timed
+        return clock(lambda: roller.rollout(models, [datas[0]], state0, nstep=steps, state=out))
 
 
 def _timer_or_note(make: Callable[[], Callable[[], float]]):
@@ -86,21 +87,23 @@ def _timer_or_note(make: Callable[[], Callable[[], float]]):
 
 
 def floor_timers(steps: int) -> tuple[dict[str, Callable[[], float]], str]:
-    """Timers of each map's floor (s a step), from ``freebody.reference_impl.floors`` (its
-    ``floor_timer(name, problem, dt, steps)`` when it offers one), or ({}, why)."""
+    """Timers of each map's floor (CPU s of a whole ``steps``-step call), from
+    ``freebody.reference_impl.floors`` (its ``FLOORS`` and ``run_floor(problem, integrator, dt,
+    steps)``), each loaded (compiled, or from numba's cache) by an untimed call; or ({}, why)."""
     from ...input.casefile import load_case
 
     try:
         floors = importlib.import_module("freebody.reference_impl.floors")
     except ImportError:
         return {}, "no flat-loop floors yet (reference_impl/floors.py)"
-    make = getattr(floors, "floor_timer", None)
-    if make is None:
-        return {}, "reference_impl/floors.py offers no floor_timer(name, problem, dt, steps)"
+    run = getattr(floors, "run_floor", None)
+    if run is None:
+        return {}, "reference_impl/floors.py offers no run_floor(problem, integrator, dt, steps)"
     problem, out = load_case(CASE), {}
-    for name in getattr(floors, "FLOOR_MAPS", ()):
-        out[name] = make(name, problem, DT, steps)
-    return out, "" if out else "reference_impl/floors.py lists no FLOOR_MAPS"
+    for name in getattr(floors, "FLOORS", ()):
+        run(problem, name, DT, 2)
+        out[name] = lambda name=name: cpu_timed(lambda: run(problem, name, DT, steps))
+    return out, ""
 
 
 def _map_times(config: BenchConfig, yard: dict, floors: dict, progress: bool):
@@ -118,15 +121,15 @@ def _map_times(config: BenchConfig, yard: dict, floors: dict, progress: bool):
         for k, timer in floors.items():
             ys[f"floor:{k}"].append(timer())
         for name in INTEGRATORS:
-            setups[name].append(timed(lambda: simulate(problem, name, DT, 0)))
-            calls[name].append(timed(lambda: simulate(problem, name, DT, n)))
+            setups[name].append(cpu_timed(lambda: simulate(problem, name, DT, 0)))
+            calls[name].append(cpu_timed(lambda: simulate(problem, name, DT, n)))
         log(f"reference maps repeat {r + 1}/{config.repeats}: "
             + ", ".join(f"{k} {v[-1] * 1e9:.0f} ns" for k, v in ys.items()), progress)
     return calls, setups, ys
 
 
 def reference_maps(config: BenchConfig, progress: bool = False) -> dict:
-    """Seconds per step of every reference map on one body through ``integrators.simulate`` (the
+    """CPU seconds per step of every reference map on one body through ``integrators.simulate`` (the
     compiled maps, as ``freebody run`` uses them), of MuJoCo's Python loop, of ``mujoco.rollout``
     and of each map's floor, interleaved.  Per step of a map = (median of a ``map_steps`` call -
     median of a zero-step call) / map_steps, floored at a tenth of the raw figure against noise;
@@ -149,8 +152,9 @@ def reference_maps(config: BenchConfig, progress: bool = False) -> dict:
               for name in INTEGRATORS}
     out = {"maps_steps": n, "maps_step_s": step_s, "maps_first_call_s": first,
            "maps_call_s": {name: median(v) for name, v in calls.items()},
-           "maps_floor_step_s": {k[6:]: median(v) for k, v in ys.items() if k.startswith("floor:")},
+           "maps_floor_call_s": {k[6:]: median(v) for k, v in ys.items() if k.startswith("floor:")},
            "maps_floor_note": floor_note}
+    out["maps_floor_step_s"] = {k: v / n for k, v in out["maps_floor_call_s"].items()}
     if "mj_step" in ys:
         out["maps_mj_step_s"] = median(ys["mj_step"])
     if "rollout" in ys:
@@ -181,12 +185,12 @@ def engine_overhead(engine: str, steps: int, repeats: int, progress: bool = Fals
             loop = a.bare_loop(steps)
             if loop is None:
                 raise NoBareLoop(f"{engine} declares no bare loop (Adapter.bare_loop)")
-            bare.append(timed(loop) / steps)
+            bare.append(cpu_timed(loop) / steps)
         finally:
             a.close()
         b = cls(problem, DT, integrator, precision)
         try:
-            ours.append(timed(lambda: b.simulate(steps)) / steps)
+            ours.append(cpu_timed(lambda: b.simulate(steps)) / steps)
         finally:
             b.close()
         log(f"{engine} repeat {r + 1}/{repeats}: bare {bare[-1] * 1e6:.2f} us/step, "
