@@ -278,7 +278,14 @@ def _chunk(m, d, rows, n, mask=None):
     return d, Q, V
 
 
-_chunk_jit = jax.jit(_chunk)
+# Every MJX run, alone or stepped with others, is one lane of this LANES-wide program: the chunk
+# vmapped over every argument (model, data, load rows, real steps, mass-matrix mask).  XLA's CPU
+# code for a vmapped computation depends on the batch width (measured with mujoco-mjx 3.17,
+# jax 0.10: widths 1, 3, 4 and 7 give another last bit than 2, 8 and 16), but a lane's numbers do
+# not depend on its position nor on the other lanes' contents at a fixed width; so with one fixed
+# width a run is bit for bit the same alone (its lane and LANES - 1 idle copies) or batched.
+LANES = 8
+_lanes_jit = jax.jit(jax.vmap(_chunk, in_axes=(0, 0, 0, 0, 0)))
 
 
 # --- building -----------------------------------------------------------------------------------
@@ -384,35 +391,30 @@ class MjxAdapter(Adapter):
     # --- stepping ------------------------------------------------------------------------------
     def advance(self, steps: int) -> Trajectory:
         """``steps`` steps from the current state (t = (k0 + i) dt, k0 = self.k) as
-        ceil(steps / CHUNK_STEPS) compiled scans.  MJX signals no instability: a blow-up comes
-        back as computed (non-finite samples), for the harness to detect."""
-        dtype, k0 = self._dtype, self.k
-        Q = np.empty((steps + 1, 7))   # [x (3) m world, q (4) wxyz body -> world]
-        V = np.empty((steps + 1, 6))   # [v (3) m/s world, w (3) rad/s BODY]
-        Q[0] = np.asarray(self._d.qpos, dtype=np.float64)
-        V[0] = np.asarray(self._d.qvel, dtype=np.float64)
-        model, data = self._m, self._d
-        with x64_scope(self.precision == "float64"):
-            i = 0
-            while i < steps:
-                n = min(CHUNK_STEPS, steps - i)
-                rows = np.zeros((CHUNK_STEPS, LOAD_ROW), dtype=dtype)
-                rows[:n] = load_rows(self.loads, k0 + i, k0 + i + n, dtype)
-                args = (model, data, jnp.asarray(rows), jnp.int32(n), self._mask)
-                fn, spent = compiled("chunk", _chunk_jit, self.precision, args,
-                                     label=self.integrator, lowering=_masked_make_m)
-                self.compile_time_s += spent
-                t0 = time.perf_counter()
-                data, Qc, Vc = fn(*args)  # the Data after the chunk's last real step
-                Qc, Vc = np.asarray(Qc), np.asarray(Vc)
-                self.step_time_s += time.perf_counter() - t0
-                if Qc.dtype != dtype:
-                    raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {self.precision}")
-                Q[i + 1:i + 1 + n], V[i + 1:i + 1 + n] = Qc[:n], Vc[:n]
-                i += n
-        self._d = data
-        self.k = k0 + steps
-        return free_joint_trajectory(Q, V, self.dt, k0)
+        ceil(steps / CHUNK_STEPS) calls of the lanes program, this run in lane 0 (the other
+        lanes idle copies; see :data:`LANES`).  MJX signals no instability: a blow-up comes back
+        as computed (non-finite samples), for the harness to detect."""
+        return self.step_runs([self], [steps])[0]
+
+    @classmethod
+    def step_runs(cls, adapters: list[MjxAdapter], steps: list[int]) -> list[Trajectory]:
+        """Step each adapter ``steps[i]`` steps from its current state, LANES runs at a time in
+        the lanes program: a lane whose run ends takes the next run at the next chunk, so runs
+        of any dt and length share the program's calls.  Each run's samples are those it has
+        stepped alone (:meth:`advance`), bit for bit.  The adapters must share integrator and
+        precision (ValueError) and, without :data:`NORMALISE`, their model structure
+        (ValueError).  Each adapter's ``step_time_s`` grows by its share of the calls it was in,
+        ``compile_time_s`` by its share of the compilation they waited for; its state moves on as
+        :meth:`advance` moves it.  Returns the trajectories (steps[i] + 1 samples each, the
+        current state first), in order."""
+        if len({(a.integrator, a.precision) for a in adapters}) > 1:
+            raise ValueError("step_runs: the runs must share integrator and precision")
+        out: list[Trajectory | None] = [None] * len(adapters)
+        if not adapters:
+            return []
+        with x64_scope(adapters[0].precision == "float64"):
+            _LaneRuns(adapters, steps, out).run()
+        return out
 
     def close(self) -> None:
         self._m = self._d = self._mask = None
@@ -421,7 +423,7 @@ class MjxAdapter(Adapter):
     @classmethod
     def simulate_batch(cls, problems: list[Problem], dt: float, steps: int,
                        integrator: str = "Euler", precision: str = "float64") -> BatchRun:
-        """Run many free bodies as one ``jax.vmap``-ped batch of MJX scans.
+        """Run many free bodies together, LANES at a time in the lanes program (:meth:`step_runs`).
 
         problems : Problems whose MJX models have the same structure (ValueError otherwise: MJX
             keeps some facts of a model as static structure; every free body has the same one
@@ -429,30 +431,26 @@ class MjxAdapter(Adapter):
             state, gravity and loads may differ.
             dt : s, shared.  steps : number of steps, shared.
         integrator, precision : as for :class:`MjxAdapter`.
-        Each body's trajectory is what :meth:`simulate` gives for it alone up to round-off (the
-        same step, vmapped: not bit for bit, see the module docstring).  A body that blows up
-        does not stop the batch: its samples turn non-finite and ``diverged_at_s`` says when.
+        Each body's trajectory is what :meth:`simulate` gives for it alone, bit for bit (the same
+        program: see :data:`LANES`).  A body that blows up does not stop the batch: its samples
+        turn non-finite and ``diverged_at_s`` says when.
         """
         cls._check_batch_options(integrator, precision)
         if not problems:
             return BatchRun([], [], 0.0, 0.0, [])
-        x64_default = current_x64()
-        schedules = [LoadSchedule(problem, dt) for problem in problems]
-        with x64_scope(precision == "float64"):
-            built = [_build(problem, dt, integrator, precision, x64_default)
-                     for problem in problems]
-            model, model_axes = _stack_models([b[0] for b in built])
-            data = jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *[b[1] for b in built])
-            mask, mask_axis = _stack_masks([b[3] for b in built])
-            fn_jit, axes_key = _batch_jit(model, model_axes, mask_axis)
-            Q, V, compile_s, step_s = _run_batch_chunks(fn_jit, axes_key, model, data, mask,
-                                                        schedules, steps, precision, integrator)
-        trajectories, diverged = [], []
-        for i in range(len(problems)):
-            bad = _first_bad(Q[i], V[i])
+        adapters = [cls(problem, dt, integrator, precision) for problem in problems]
+        try:
+            trajectories = cls.step_runs(adapters, [steps] * len(adapters))
+        finally:
+            for a in adapters:
+                a.close()
+        diverged = []
+        for tr in trajectories:
+            bad = _first_bad(np.concatenate([tr.position, tr.quaternion_wxyz], axis=1),
+                             np.concatenate([tr.linear_velocity, tr.angular_velocity], axis=1))
             diverged.append(None if bad is None else bad * dt)
-            trajectories.append(free_joint_trajectory(Q[i], V[i], dt))
-        return BatchRun(trajectories, diverged, compile_s, step_s, [b[2] for b in built])
+        return BatchRun(trajectories, diverged, sum(a.compile_time_s for a in adapters),
+                        sum(a.step_time_s for a in adapters), [dict(a.settings) for a in adapters])
 
     @classmethod
     def _check_batch_options(cls, integrator: str, precision: str) -> None:
@@ -466,87 +464,123 @@ class MjxAdapter(Adapter):
                                     f"not {precision!r}")
 
 
-# --- batched runs: helpers ------------------------------------------------------------------------
+# --- the lanes program: LANES runs side by side -----------------------------------------------------
 
-def _batch_jit(model, model_axes, mask_axis):
-    """(jit(vmap(_chunk)) for the stacked model, its cache key).  The key is the model's static
-    structure (integrator, ...) and which leaves (and whether the mass-matrix masks) vary across
-    the batch: a compiled batch fits only models that agree on both."""
-    axes_key = (jax.tree_util.tree_structure(model), tuple(
-        a is None for a in jax.tree_util.tree_leaves(model_axes, is_leaf=lambda x: x is None)),
-        mask_axis)
-    fn_jit = _BATCH_JIT.get(axes_key)
-    if fn_jit is None:
-        fn_jit = _BATCH_JIT[axes_key] = jax.jit(
-            jax.vmap(_chunk, in_axes=(model_axes, 0, 0, None, mask_axis)))
-    return fn_jit, axes_key
+class _Lanes:
+    """The inputs of the lanes program, host side: per leaf of the MJX Model, Data and mass-matrix
+    mask one numpy array (LANES, ...), lane j holding the world of the run in lane j.  Built from
+    numpy arrays every call, so a run alone and a run among others give the program the same kind
+    of arguments (shapes, dtypes, no weak types): the same compiled program."""
 
+    def __init__(self, first: MjxAdapter):
+        m_leaves, self.model_def = jax.tree_util.tree_flatten(first._m)
+        d_leaves, self.data_def = jax.tree_util.tree_flatten(first._d)
+        self.model = [np.stack([np.asarray(x)] * LANES) for x in m_leaves]
+        self.data = [np.stack([np.asarray(x)] * LANES) for x in d_leaves]
+        self.mask = None if first._mask is None else np.stack([np.asarray(first._mask)] * LANES)
+        self.precision, self.integrator = first.precision, first.integrator
 
-def _stack_masks(masks):
-    """(mask argument, its vmap axis) for the bodies' mass-matrix masks (None: not normalised;
-    one mask when all are equal)."""
-    if masks[0] is None:
-        return None, None
-    if all(np.array_equal(np.asarray(masks[0]), np.asarray(m)) for m in masks[1:]):
-        return masks[0], None
-    return jnp.stack(masks), 0
+    def put(self, lane: int, a: MjxAdapter) -> None:
+        """Lane ``lane`` takes run ``a``'s world (its current state)."""
+        m_leaves, m_def = jax.tree_util.tree_flatten(a._m)
+        d_leaves, d_def = jax.tree_util.tree_flatten(a._d)
+        if m_def != self.model_def or d_def != self.data_def or (a._mask is None) != (self.mask is None):
+            raise ValueError("step_runs: the runs' MJX models differ in structure")
+        for stacked, x in zip(self.model, m_leaves):
+            stacked[lane] = np.asarray(x)
+        for stacked, x in zip(self.data, d_leaves):
+            stacked[lane] = np.asarray(x)
+        if self.mask is not None:
+            self.mask[lane] = np.asarray(a._mask)
 
+    def lane_data(self, lane: int):
+        """The mjx.Data of lane ``lane`` (numpy leaves)."""
+        return jax.tree_util.tree_unflatten(self.data_def, [x[lane].copy() for x in self.data])
 
-def _run_batch_chunks(fn_jit, axes_key, model, data, mask, schedules: list[LoadSchedule],
-                      steps: int, precision: str, integrator: str):
-    """``steps`` steps of the stacked batch in compiled chunks of CHUNK_STEPS, inside the
-    caller's x64 scope.  Returns (qpos (B, steps + 1, 7), qvel (B, steps + 1, 6) as float64,
-    seconds compiling, seconds stepping)."""
-    dtype = _DTYPE[precision]
-    B = len(schedules)
-    Q = np.empty((B, steps + 1, 7))
-    V = np.empty((B, steps + 1, 6))
-    Q[:, 0] = np.asarray(data.qpos, dtype=np.float64)
-    V[:, 0] = np.asarray(data.qvel, dtype=np.float64)
-    compile_s = step_s = 0.0
-    k = 0
-    while k < steps:
-        n = min(CHUNK_STEPS, steps - k)
-        rows = np.zeros((B, CHUNK_STEPS, LOAD_ROW), dtype=dtype)
-        for i, loads in enumerate(schedules):
-            rows[i, :n] = load_rows(loads, k, k + n, dtype)
-        args = (model, data, jnp.asarray(rows), jnp.int32(n), mask)
-        fn, spent = compiled("batch", fn_jit, precision, args, extra=axes_key, label=integrator,
-                             lowering=_masked_make_m)
-        compile_s += spent
+    def step(self, rows: np.ndarray, ns: np.ndarray):
+        """One call: lane j steps ns[j] (<= CHUNK_STEPS) steps with the load rows rows[j]
+        (LANES, CHUNK_STEPS, LOAD_ROW).  Returns (qpos (LANES, CHUNK_STEPS, 7), qvel
+        (LANES, CHUNK_STEPS, 6) in the run's precision, rows ns[j].. of lane j repeating its last
+        state; seconds compiling; seconds stepping)."""
+        args = (jax.tree_util.tree_unflatten(self.model_def, self.model),
+                jax.tree_util.tree_unflatten(self.data_def, self.data), rows, ns, self.mask)
+        fn, spent = compiled("lanes", _lanes_jit, self.precision, args, extra=(LANES,),
+                             label=self.integrator, lowering=_masked_make_m)
         t0 = time.perf_counter()
-        data, Qc, Vc = fn(*args)
-        Qc, Vc = np.asarray(Qc), np.asarray(Vc)
-        step_s += time.perf_counter() - t0
-        if Qc.dtype != dtype:
-            raise RuntimeError(f"mjx computed qpos in {Qc.dtype}, not {precision}")
-        Q[:, k + 1:k + 1 + n], V[:, k + 1:k + 1 + n] = Qc[:, :n], Vc[:, :n]
-        k += n
-    return Q, V, compile_s, step_s
+        data, Q, V = fn(*args)
+        Q, V = np.asarray(Q), np.asarray(V)
+        self.data = [np.array(x) for x in jax.tree_util.tree_leaves(data)]
+        stepped = time.perf_counter() - t0
+        if Q.dtype != _DTYPE[self.precision]:
+            raise RuntimeError(f"mjx computed qpos in {Q.dtype}, not {self.precision}")
+        return Q, V, spent, stepped
 
 
-def _stack_models(models):
-    """(stacked model, in_axes tree): leaves equal across the batch stay unbatched (None)."""
-    leaves0, treedef = jax.tree_util.tree_flatten(models[0])
-    all_leaves = [leaves0]
-    for mx in models[1:]:
-        leaves, td = jax.tree_util.tree_flatten(mx)
-        if td != treedef:
-            raise ValueError("simulate_batch: the problems' MJX models differ in structure")
-        all_leaves.append(leaves)
-    out, axes = [], []
-    for i, a in enumerate(leaves0):
-        column = [lv[i] for lv in all_leaves]
-        if all(np.array_equal(np.asarray(a), np.asarray(c)) for c in column[1:]):
-            out.append(a)
-            axes.append(None)
-        else:
-            out.append(jnp.stack(column))
-            axes.append(0)
-    return jax.tree_util.tree_unflatten(treedef, out), jax.tree_util.tree_unflatten(treedef, axes)
+class _LaneRuns:
+    """Runs stepped through one :class:`_Lanes`, a run per lane, the next run taking a lane as
+    soon as its run ends (at a chunk's end); ``out[i]`` gets run i's trajectory."""
 
+    def __init__(self, adapters: list[MjxAdapter], steps: list[int], out: list):
+        self.adapters, self.steps, self.out = adapters, [int(n) for n in steps], out
+        self.lanes = _Lanes(adapters[0])
+        self.queue = list(range(len(adapters)))[::-1]  # popped from the end: in order
+        self.lane_run: list[int | None] = [None] * LANES
+        self.done = [0] * len(adapters)
+        self.Q: dict[int, np.ndarray] = {}  # run -> [x (3) m world, q (4) wxyz body -> world]
+        self.V: dict[int, np.ndarray] = {}  # run -> [v (3) m/s world, w (3) rad/s BODY]
 
-_BATCH_JIT: dict = {}  # in-axes of the stacked model -> jit(vmap(_chunk))
+    def run(self) -> None:
+        while self._fill():
+            self._call()
+
+    def _fill(self) -> bool:
+        """Give every free lane the next run (a run of 0 steps ends at once); whether a lane
+        has a run to step."""
+        for lane in range(LANES):
+            while self.lane_run[lane] is None and self.queue:
+                i = self.queue.pop()
+                a = self.adapters[i]
+                self.Q[i] = np.empty((self.steps[i] + 1, 7))
+                self.V[i] = np.empty((self.steps[i] + 1, 6))
+                self.Q[i][0] = np.asarray(a._d.qpos, dtype=np.float64)
+                self.V[i][0] = np.asarray(a._d.qvel, dtype=np.float64)
+                if self.steps[i] == 0:
+                    self._finish(i, None)
+                    continue
+                self.lanes.put(lane, a)
+                self.lane_run[lane] = i
+        return any(i is not None for i in self.lane_run)
+
+    def _call(self) -> None:
+        """One call of the lanes program for the runs in the lanes; ends those that are done."""
+        dtype = _DTYPE[self.lanes.precision]
+        rows = np.zeros((LANES, CHUNK_STEPS, LOAD_ROW), dtype=dtype)
+        ns = np.zeros(LANES, dtype=np.int32)
+        for lane, i in enumerate(self.lane_run):
+            if i is not None:
+                a, k = self.adapters[i], self.done[i]
+                ns[lane] = n = min(CHUNK_STEPS, self.steps[i] - k)
+                rows[lane, :n] = load_rows(a.loads, a.k + k, a.k + k + n, dtype)
+        Q, V, spent, stepped = self.lanes.step(rows, ns)
+        active = [(lane, i) for lane, i in enumerate(self.lane_run) if i is not None]
+        for lane, i in active:
+            a, k, n = self.adapters[i], self.done[i], int(ns[lane])
+            a.compile_time_s += spent / len(active)
+            a.step_time_s += stepped / len(active)
+            self.Q[i][k + 1:k + 1 + n], self.V[i][k + 1:k + 1 + n] = Q[lane, :n], V[lane, :n]
+            self.done[i] = k + n
+            if self.done[i] == self.steps[i]:
+                self._finish(i, lane)
+                self.lane_run[lane] = None
+
+    def _finish(self, i: int, lane: int | None) -> None:
+        """Run i is done: its trajectory out, its adapter's state moved on (from lane ``lane``)."""
+        a = self.adapters[i]
+        if lane is not None:
+            a._d = self.lanes.lane_data(lane)
+        self.out[i] = free_joint_trajectory(self.Q.pop(i), self.V.pop(i), a.dt, a.k)
+        a.k += self.steps[i]
+
 
 # The function form of MjxAdapter.simulate_batch (docs/mjx.md); the harness asks the class.
 simulate_batch = MjxAdapter.simulate_batch

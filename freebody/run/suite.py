@@ -63,6 +63,9 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
     keep_arrays : give each RunOutput its trajectory, truth and series (else only ``result``).
     simulated : spec index -> (Simulated, the engine it ports or None) for runs already stepped
         (``freebody sweep``'s batches): only judged, with the truths and reference maps of their group.
+        None (the default): with the local executor and no ``timeout``, the runs of engines that
+        step runs together bit for bit as alone (MJX) are stepped so first, in this process
+        (:mod:`freebody.run.batching`), then judged in the workers: the same results, less time.
 
     Returns (the results.json document, the RunOutputs in spec order); ``on_result`` is called
     with each RunOutput as it finishes.  The numbers do not depend on ``jobs`` or ``executor``.
@@ -89,6 +92,10 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
         folder = OutputFolder(out_path) if out_path is not None else None
         finished = _Finished(folder, versions, bar, on_result)
         try:
+            if simulated is None and local and timeout is None:  # a time limit needs a run alone
+                from .batching import step_together
+
+                simulated = step_together(specs, note=bar.note)  # the numbers of runs alone
             tasks = plan(specs, simulated=simulated,
                          save_dir=str(folder.trajectory_dir) if folder is not None and local else None,
                          save_every=save_every, ship_saved=folder is not None and not local,

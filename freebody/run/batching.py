@@ -1,0 +1,121 @@
+"""Runs of one engine stepped together before they are judged (``freebody run``'s MJX runs).
+
+An engine whose adapter class steps many runs in one program, each run bit for bit as it steps
+alone, is listed in :data:`LANE_ENGINES` with the name of that classmethod
+(``step_runs(adapters, steps) -> trajectories``; MJX: its LANES-wide vmapped program, see
+:mod:`freebody.adapters.mjx_adapter`).  :func:`step_together` builds those runs' adapters in this
+process, steps the runs of each (engine, integrator, precision) together, across cases, time steps
+and lengths, and returns what each produced as the :class:`~freebody.run.records.Simulated` that
+:func:`~freebody.run.execute.execute` would have made of it; :func:`freebody.run.suite.run_specs`
+then has them judged in the workers like any run (its ``simulated=`` argument).  Because the
+numbers are the one-by-one run's, batching never changes a result; what it changes is the
+time: a run's ``wall_time_s`` is its adapter's set-up plus its share of the program's calls and
+of the compilation.
+
+Left to be stepped one by one (same numbers, in a worker): runs of an engine that is missing,
+fails to load, is not supported in its installed version or runs in an isolated environment; a
+run whose adapter cannot be built (it records its own failure there); runs longer than
+``PROGRESS_PIECE_MIN_STEPS`` (they show their steps while stepping); runs past
+:data:`MAX_BATCHED_SAMPLES` (the batched trajectories wait in memory for their judging); and every
+run when a per-run time limit is set (``--timeout``: a limit needs the run in a worker of its own)
+or the executor is dask.  A run that blows up is that run's divergence (decided when it is judged);
+the others in its lanes go on.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable
+
+from .. import tolerances as tol
+from .records import RunSpec, Simulated
+
+# engine -> the adapter classmethod stepping runs together bit for bit as alone
+# (Brax: add "brax" here once its adapter has such a method; see docs/mjx.md).
+LANE_ENGINES: dict[str, str] = {"mjx": "step_runs"}
+
+# At most this many samples of batched runs are held at once (a sample of a Trajectory is 15
+# float64, 120 B: 1.5 M samples ~180 MB; the default suite's MJX runs are 1.2 M); later runs go
+# one by one.
+MAX_BATCHED_SAMPLES = 1_500_000
+
+
+def step_together(specs: list[RunSpec], note: Callable[[str], None] | None = None,
+                  ) -> dict[int, tuple[Simulated, str | None]]:
+    """Step the runs of :data:`LANE_ENGINES` engines among ``specs`` together; spec index ->
+    (its Simulated, the engine it ports or None).  ``note``: told one line per group stepped
+    (engine/integrator/precision, runs, seconds)."""
+    out: dict[int, tuple[Simulated, str | None]] = {}
+    budget = MAX_BATCHED_SAMPLES
+    for (engine, integrator, precision), members in _groups(specs).items():
+        cls = _lane_class(engine)
+        if cls is None:
+            continue
+        chosen = []
+        for i in members:
+            if specs[i].steps + 1 <= budget:
+                budget -= specs[i].steps + 1
+                chosen.append(i)
+        t0 = time.perf_counter()
+        done = _step_group(cls, getattr(cls, LANE_ENGINES[engine]), [(i, specs[i]) for i in chosen])
+        out.update(done)
+        if note is not None and done:
+            note(f"{engine}/{integrator}/{precision}: {len(done)} runs stepped together "
+                 f"({time.perf_counter() - t0:.1f} s)")
+    return out
+
+
+def _groups(specs: list[RunSpec]) -> dict[tuple, list[int]]:
+    """(engine, integrator, precision) -> indices of the specs that may be stepped together."""
+    groups: dict[tuple, list[int]] = {}
+    for i, s in enumerate(specs):
+        if (s.engine in LANE_ENGINES and s.integrator != "*"
+                and s.steps <= tol.PROGRESS_PIECE_MIN_STEPS):
+            groups.setdefault((s.engine, s.integrator, s.precision), []).append(i)
+    return groups
+
+
+def _lane_class(engine: str):
+    """The engine's adapter class, or None: missing, isolated, failing to load, or not supported
+    in its installed version (its runs then go one by one and record why)."""
+    from ..adapters.base import is_available, load_adapter, unsupported_version
+    from ..adapters.capture import capture_output
+    from ..envs.engines import isolated
+
+    try:
+        if isolated(engine) or not is_available(engine):
+            return None
+        with capture_output():
+            cls = load_adapter(engine)
+        return None if unsupported_version(cls, cls.engine_version()) else cls
+    except Exception:
+        return None
+
+
+def _step_group(cls, step_runs, members: list[tuple[int, RunSpec]]) -> dict[int, tuple]:
+    """Build each member's adapter (one that fails is left out: it fails again, recorded, when
+    run alone), step them together, and wrap each run's samples as execute() does."""
+    version = cls.engine_version()
+    built, setup = [], {}
+    for i, spec in members:
+        t0 = time.perf_counter()
+        try:
+            adapter = cls(spec.problem, spec.dt, spec.integrator, spec.precision)
+        except Exception:
+            continue
+        built.append((i, spec, adapter))
+        setup[i] = time.perf_counter() - t0
+    if not built:
+        return {}
+    try:
+        trajectories = step_runs([a for _, _, a in built], [s.steps for _, s, _ in built])
+    except Exception:  # the runs go one by one instead, and record their own failure
+        return {}
+    finally:
+        for _, _, a in built:
+            a.close()
+    out = {}
+    for (i, spec, a), tr in zip(built, trajectories):
+        wall = setup[i] + a.step_time_s + a.compile_time_s
+        out[i] = (Simulated(tr, None, "", version, a.settings, wall, a.compile_time_s),
+                  cls.compare_with)
+    return out
