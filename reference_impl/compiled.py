@@ -384,13 +384,31 @@ def _row(a, i):
 
 
 @jit
+def segment_of(k, loads):
+    """The segment of step k: the last s with loads.k0[s] <= k."""
+    s = len(loads.k0) - 1
+    while loads.k0[s] > k:
+        s -= 1
+    return s
+
+
+@jit
+def segment_end(s, steps, loads):
+    """One past the last step of segment s within a run of ``steps`` steps."""
+    return steps if s + 1 == len(loads.k0) else min(steps, loads.k0[s + 1])
+
+
+@jit
 def wrench(k, x, R, loads):
     """(force (3,) N world, torque about the COM (3,) N m world) of the loads of step k at COM
     position x and rotation R (body -> world), gravity excluded: Problem.wrench, summed in case
     order from zero."""
-    s = len(loads.k0) - 1
-    while loads.k0[s] > k:
-        s -= 1
+    return segment_wrench(segment_of(k, loads), x, R, loads)
+
+
+@jit
+def segment_wrench(s, x, R, loads):
+    """:func:`wrench` of any step of segment s (a driver looks the segment up once per segment)."""
     f = (0.0, 0.0, 0.0)
     tau = (0.0, 0.0, 0.0)
     for i in range(loads.first[s], loads.first[s + 1]):
@@ -501,6 +519,12 @@ def semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gy
 def semi_implicit_velocities(k, x, R, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro):
     """integrators.semi_implicit_velocities: (x+, v+, w_b+) at the orientation R."""
     f, tau = wrench(k, x, R, loads)
+    return semi_implicit_update(f, tau, x, R, v, w_b, dt, M, I_b, I_inv, g, implicit_gyro)
+
+
+@jit
+def semi_implicit_update(f, tau, x, R, v, w_b, dt, M, I_b, I_inv, g, implicit_gyro):
+    """:func:`semi_implicit_velocities` of a step whose wrench (f, tau) (N, N m, world) is given."""
     tau_b = matvec(transpose(R), tau)
     rhs = sub(tau_b, cross(w_b, matvec(I_b, w_b)))
     if implicit_gyro:
@@ -708,13 +732,23 @@ def run_splitting(x, q, p, L, dt, steps, M, axes, moments, I_inv, g, loads, out_
 @jit
 def run_semi_implicit(x, q, v, w_b, dt, steps, M, I_b, I_inv, g, loads, implicit_gyro,
                       out_x, out_q, out_v, out_w):
-    """Rows 1..steps of x, q, v, w = R w_b (world) of the engines' map."""
-    for k in range(steps):
-        x, q, v, w_b = semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro)
-        put_row(out_x, k + 1, x)
-        put_row(out_q, k + 1, q)
-        put_row(out_v, k + 1, v)
-        put_row(out_w, k + 1, matvec(matrix_from_quat(q), w_b))
+    """Rows 1..steps of x, q, v, w = R w_b (world) of the engines' map (semi_implicit_step, step
+    by step): the loads' segment looked up once per segment, a torque-free segment's wrench the
+    zeros wrench() sums to, R(q) formed once a step (the output's is the next step's)."""
+    R = matrix_from_quat(q)
+    zero = (0.0, 0.0, 0.0)
+    for s in range(len(loads.k0)):
+        free = loads.first[s] == loads.first[s + 1]
+        for k in range(min(loads.k0[s], steps), segment_end(s, steps, loads)):
+            f, tau = (zero, zero) if free else segment_wrench(s, x, R, loads)
+            x, v, w_b = semi_implicit_update(f, tau, x, R, v, w_b, dt, M, I_b, I_inv, g, implicit_gyro)
+            q = quat_normalize(quat_multiply(q, quat_from_rotvec(scale(dt, w_b))))
+            R = matrix_from_quat(q)
+            j = k + 1
+            out_x[j, 0], out_x[j, 1], out_x[j, 2] = x
+            out_q[j, 0], out_q[j, 1], out_q[j, 2], out_q[j, 3] = q
+            out_v[j, 0], out_v[j, 1], out_v[j, 2] = v
+            out_w[j, 0], out_w[j, 1], out_w[j, 2] = matvec(R, w_b)
 
 
 # --- from a Problem ----------------------------------------------------------------------------
