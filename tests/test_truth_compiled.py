@@ -97,3 +97,17 @@ def test_truths_use_the_compiled_rhs(monkeypatch):
     calls.clear()
     list(truth.truth_chunks(pb, 0.01, 100, 30))
     assert calls
+
+
+def test_closed_form_truth_does_not_load_the_compiled_rhs():
+    """Only a numerical truth imports truth_rhs (and numba with it): a closed-form truth's process
+    does not pay for it."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from freebody.input.casefile import load_case; "
+            "from freebody.reference_impl.truth import truth_trajectory; "
+            "truth_trajectory(load_case('dzhanibekov'), 0.01, 10); "
+            "print('freebody.reference_impl.truth_rhs' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
