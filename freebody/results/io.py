@@ -323,16 +323,20 @@ def write_json_atomic(path: Path, data: dict, *, before_replace=None, what: str 
     _write_atomic(path, lambda f: f.write(text.encode("utf-8")), before_replace, what=what)
 
 
-def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True) -> None:
-    """Write arrays to an npz file (``np.savez_compressed``, or ``np.savez``) atomically."""
-    _write_atomic(path, lambda f: (np.savez_compressed if compressed else np.savez)(f, **arrays))
+def write_npz_atomic(path: Path, arrays: dict, compressed: bool = True, durable: bool = True) -> None:
+    """Write arrays to an npz file (``np.savez_compressed``, or ``np.savez``) atomically.
+    ``durable`` False: no fsync, for a scratch file that other processes read while this run lasts
+    (the rename alone makes it whole to them) and that no one needs after a crash."""
+    _write_atomic(path, lambda f: (np.savez_compressed if compressed else np.savez)(f, **arrays),
+                  durable=durable)
 
 
-def _write_atomic(path: Path, write, before_replace=None, what: str | None = None) -> None:
+def _write_atomic(path: Path, write, before_replace=None, what: str | None = None,
+                  durable: bool = True) -> None:
     """Check ``path`` (:func:`check_output_file`), create the parent folders, ``write(binary file)``
-    to a new temporary file beside ``path``, fsync it, call ``before_replace()`` if given, check
-    ``path`` again (it may have changed meanwhile) and rename the temporary file to ``path``; the
-    temporary file is removed if anything fails."""
+    to a new temporary file beside ``path``, fsync it (if ``durable``), call ``before_replace()``
+    if given, check ``path`` again (it may have changed meanwhile) and rename the temporary file to
+    ``path``; the temporary file is removed if anything fails."""
     path = check_output_file(path, what)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = _new_temporary(path)
@@ -340,7 +344,8 @@ def _write_atomic(path: Path, write, before_replace=None, what: str | None = Non
         with os.fdopen(fd, "wb") as f:
             write(f)
             f.flush()
-            os.fsync(f.fileno())
+            if durable:
+                os.fsync(f.fileno())
         if before_replace is not None:
             before_replace()
         check_output_file(path, what)

@@ -221,7 +221,9 @@ class LocalPool:
 
     timeout : per-run time limit, s, or None; a run past it is killed and ``failed``.
     engines : engines whose adapters the workers import when they start (as the parent has).
-    share_truths : share truths and reference maps between workers through a temporary directory.
+    share_truths : share truths and reference maps between workers through a temporary directory
+        (not for one worker of this interpreter: it keeps a group's in memory, and the store's files
+        cost more to write, a millisecond each, than most of the runs they would serve).
     registry : the adapter registry the workers use (default: this process's,
         :data:`freebody.adapters.base.ENGINES`, so an engine registered at run time works there too).
     interpreters : engine -> the Python interpreter of its isolated environment
@@ -238,6 +240,9 @@ class LocalPool:
         self.jobs = max(1, int(jobs))
         self.timeout = timeout
         self.workers: list[Worker] = []
+        # one worker (of this interpreter; with other interpreters workers are swapped) runs a
+        # group's runs one after another: nothing to share
+        share_truths = share_truths and (self.jobs > 1 or bool(self.interpreters))
         self.store = tempfile.mkdtemp(prefix="freebody-truths-") if share_truths else None
         self.options = {"sys_path": list(sys.path), "engines": dict(base.ENGINES if registry is None else registry),
                         "preimport": [e for e in engines if e not in self.interpreters], "store": self.store,

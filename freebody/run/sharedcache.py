@@ -48,7 +48,8 @@ def _save(path: Path, tr: Trajectory) -> None:
     arrays = {f: getattr(tr, f) for f in _FIELDS}
     if tr.orthonormality_error is not None:
         arrays["orthonormality_error"] = tr.orthonormality_error
-    write_npz_atomic(path, arrays, compressed=False)  # read back at once by the group's other runs
+    # read back at once by the group's other runs; a scratch file (the store goes at the suite's end)
+    write_npz_atomic(path, arrays, compressed=False, durable=False)
 
 
 def _load(path: Path) -> Trajectory | None:
@@ -154,7 +155,7 @@ class GroupTruthCache(TruthCache):
             if spread is None:
                 spread = super().roundoff(problem, integrator, dt, steps, precision, load_sampling)
                 if path is not None:
-                    write_npz_atomic(path, {"spread": spread}, compressed=False)
+                    write_npz_atomic(path, {"spread": spread}, compressed=False, durable=False)
         self._memo[key] = spread
         return spread
 
