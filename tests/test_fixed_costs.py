@@ -115,3 +115,15 @@ def test_json_text_is_json_dumps_of_json_safe_byte_for_byte():
     for bad in ({"p": object()}, [{1, 2}]):
         with pytest.raises(TypeError, match="is not JSON serializable"):
             json_text(bad)
+
+
+@pytest.mark.parametrize("jobs, interpreters, shared", [(1, None, False), (2, None, True),
+                                                          (1, {"reference==0": sys.executable}, True)])
+def test_one_worker_of_one_interpreter_has_no_shared_store(jobs, interpreters, shared):
+    """One worker runs a group's runs one after another (its memory holds the group): writing every
+    map to a shared folder would only cost; several workers, or workers swapped between
+    interpreters, share through it."""
+    from freebody.run.executor import LocalPool
+
+    with LocalPool(jobs, interpreters=interpreters) as pool:
+        assert (pool.store is not None) == shared
