@@ -71,7 +71,7 @@ def run_bench(config: BenchConfig, progress: bool = False) -> dict:
             doc.update(_guarded(part, lambda: fn(config, progress), progress))
         else:
             doc[f"{part}_note"] = ("not measured (--quick: give --cold to measure it)"
-                                   if part == "compile" and config.quick else "not measured (--part)")
+                                   if part == "compile" and config.quick else "not measured (not among the parts run)")
     doc["load_average_end"] = list(os.getloadavg()) if hasattr(os, "getloadavg") else None
     doc["checks"] = [asdict(c) | {"status": c.status} for c in checks(doc)]
     return doc
