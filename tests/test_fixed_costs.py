@@ -127,3 +127,19 @@ def test_one_worker_of_one_interpreter_has_no_shared_store(jobs, interpreters, s
 
     with LocalPool(jobs, interpreters=interpreters) as pool:
         assert (pool.store is not None) == shared
+
+
+def test_a_worker_imports_only_what_its_run_needs():
+    """A worker running a closed-form case on the reference engine imports no other engine, no
+    plotting and no ODE solver (scipy.integrate is the numerical truth's only)."""
+    code = ("import sys\n"
+            "from freebody.input.casefile import load_case\n"
+            "from freebody.run.records import RunSpec\n"
+            "from freebody.run.worker import RunTask, Runner\n"
+            "r = Runner().run(RunTask(0, 'p0', RunSpec(load_case('dzhanibekov'), 'reference', 'rk4', 0.01, 3)))\n"
+            "assert r['result'].status == 'ok', r['result'].message\n"
+            "print(sorted(m for m in ('scipy.integrate', 'matplotlib', 'mujoco', 'jax', 'pybullet', 'dartpy',\n"
+            "                         'pydrake', 'sapien', 'freebody.report.plots') if m in sys.modules))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "[]"
