@@ -339,7 +339,8 @@ def quick_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench") / "bench.json"
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
-        code = main(["bench", "--quick", "--json", "--quiet", "--repeats", "1", "--out", str(out)])
+        code = main(["bench", "--quick", "--json", "--quiet", "--repeats", "1", "--rss-steps", "10000",
+                     "--out", str(out)])
     assert code == 0
     return buf.getvalue(), json.loads(out.read_text())
 
@@ -363,7 +364,7 @@ def test_quick_bench_reports_every_figure(quick_run):
                     "suite_cold_wall_s", "suite_warm_wall_s", "suite_report_wall_s",
                     "suite_nomjx_stepping_s", "suite_trajectories_bytes"):
             assert _positive(doc[key]), key
-        assert doc["overhead_n_runs"] == len(C.QUICK_OVERHEAD_CASES) * 5 and doc["rss_steps"] == C.QUICK_RSS_STEPS
+        assert doc["overhead_n_runs"] == len(C.QUICK_OVERHEAD_CASES) * 5 and doc["rss_steps"] == 10000
     text = bench.format_text(doc)
     assert text.count("PASS") + text.count("MISS") + text.count("n/a") >= len(doc["checks"])
 
