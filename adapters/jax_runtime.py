@@ -27,6 +27,7 @@ state-dependent torques are formed inside the step from the current pose (see :d
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import os
 import re
 import time
@@ -44,7 +45,8 @@ except ImportError:  # no POSIX file locks (Windows): processes may compile the 
 from .loads import LoadSchedule
 
 __all__ = ["CACHE_DIR", "COMPILE_STATS", "LOAD_ROW", "compiled", "current_x64", "default_cache_dir",
-           "load_rows", "loads_reach_every_stage", "machine_lock", "quat_matrix", "x64_scope"]
+           "load_rows", "loads_reach_every_stage", "machine_lock", "outside_x64", "quat_matrix",
+           "x64_scope"]
 
 # One row of per-step loads (the step's load set):
 # [0:3] force N world, [3:6] constant torque N m world, [6:9] anchor c m world,
@@ -155,14 +157,26 @@ def x64_scope(on: bool):
     and code outside (later runs, the user's own JAX code) never meets a trace made under the
     other mode.  The compiled executables :func:`compiled` keeps are not affected."""
     outer = current_x64()
+    token = _OUTSIDE_X64.set(outside_x64())  # the value outside the outermost scope
     if on != outer:
         jax.clear_caches()
     try:
         with _jax_x64(on):
             yield
     finally:
+        _OUTSIDE_X64.reset(token)
         if on != outer:
             jax.clear_caches()
+
+
+_OUTSIDE_X64: contextvars.ContextVar = contextvars.ContextVar("freebody_outside_x64", default=None)
+
+
+def outside_x64() -> bool:
+    """jax_enable_x64 outside every :func:`x64_scope` (what a run records as the default it
+    changed, however many scopes it is built in)."""
+    value = _OUTSIDE_X64.get()
+    return current_x64() if value is None else value
 
 
 def current_x64() -> bool:

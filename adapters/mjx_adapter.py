@@ -22,8 +22,9 @@ MuJoCo's, converted the same way:
   MuJoCo adapter's old rule, arms from the state at the start of the step.
 
 Stepping.  ``advance(n)`` is ``jax.lax.scan`` of ``mjx.step`` under ``jax.jit`` over chunks of
-``CHUNK_STEPS`` steps, so n steps cost ceil(n / CHUNK_STEPS) calls from Python and one
-compilation per (model structure, integrator, precision) and process: the model is an argument of
+``CHUNK_STEPS`` steps (in lane 0 of the lanes program, see "Batches"), so n steps cost
+ceil(n / CHUNK_STEPS) calls from Python and one compilation per (model structure, integrator,
+precision) and process: the model is an argument of
 the compiled function (not a constant), so bodies of different mass and inertia share it.  A chunk
 of fewer real steps (the last one, or every one when the harness delivers a run in pieces) is
 padded to ``CHUNK_STEPS`` with steps that leave the Data as it is (``lax.cond`` on the step
@@ -92,10 +93,13 @@ auto-reset: a blow-up grows until the state is non-finite, and ``advance`` retur
 computed (never raising :class:`~freebody.adapters.base.EngineDiverged`); the harness detects it
 (non-finite values, and its bounds on a huge but finite state).
 
-Batches.  ``MjxAdapter.supports_batch`` is True: :meth:`MjxAdapter.simulate_batch` steps many
-bodies as one ``jax.vmap``-ped scan (``freebody sweep`` uses it).  A body's trajectory is its
-single run's up to round-off, not bit for bit: the vmapped step is compiled as another XLA
-computation (a few ulp per step, then grown by the dynamics like any perturbation).
+Batches.  Every run, alone or with others, is one lane of the same :data:`LANES`-wide program
+(``jax.vmap`` of the chunk over every argument): a run alone is lane 0 beside idle copies of
+itself.  At a fixed width a lane's numbers depend neither on its position nor on the other lanes,
+so :meth:`MjxAdapter.step_runs` (runs of one integrator and precision, any dt and length, a lane
+refilled when its run ends; ``freebody run`` uses it through :mod:`freebody.run.batching`) and
+:meth:`MjxAdapter.simulate_batch` (``supports_batch`` is True; ``freebody sweep``) give each run
+its one-by-one samples bit for bit.
 
 Engine defaults changed (recorded, read back): the MuJoCo adapter's (timestep, gravity,
 integrator, alignfree, and the C auto-reset flag, which MJX ignores), and ``jax_enable_x64``
@@ -112,7 +116,7 @@ import inspect
 import io
 import threading
 import time
-from typing import ClassVar
+from typing import Callable, ClassVar
 
 import numpy as np
 
@@ -138,7 +142,7 @@ from .base import (LOAD_SAMPLING_PER_STAGE, LOAD_SAMPLING_PER_STEP, Adapter, Bat
                    UnsupportedOption, distribution_version)
 # CACHE_DIR, COMPILE_STATS and default_cache_dir are this module's names too (docs/mjx.md)
 from .jax_runtime import (CACHE_DIR, COMPILE_STATS, LOAD_ROW, compiled, current_x64,  # noqa: E402,F401
-                          default_cache_dir, load_rows, quat_matrix, x64_scope)
+                          default_cache_dir, load_rows, outside_x64, quat_matrix, x64_scope)
 from .loads import LoadSchedule  # noqa: E402
 from .mjcf import free_joint_trajectory  # noqa: E402
 from .mujoco_adapter import MujocoAdapter  # noqa: E402
@@ -284,7 +288,10 @@ def _chunk(m, d, rows, n, mask=None):
 # jax 0.10: widths 1, 3, 4 and 7 give another last bit than 2, 8 and 16), but a lane's numbers do
 # not depend on its position nor on the other lanes' contents at a fixed width; so with one fixed
 # width a run is bit for bit the same alone (its lane and LANES - 1 idle copies) or batched.
-LANES = 8
+# Measured on the default suite's 282 MJX runs (each (integrator, precision) has one run of
+# 100 000 steps, which sets the number of calls): CPU 43 s at width 2, 55 s at 4, 61 s at 8; a run
+# alone costs the least at 2 as well.
+LANES = 2
 _lanes_jit = jax.jit(jax.vmap(_chunk, in_axes=(0, 0, 0, 0, 0)))
 
 
@@ -380,7 +387,7 @@ class MjxAdapter(Adapter):
     # --- world ---------------------------------------------------------------------------------
     def build(self) -> None:
         self._dtype = _DTYPE[self.precision]
-        x64_default = current_x64()
+        x64_default = outside_x64()
         with x64_scope(self.precision == "float64"):
             self._m, self._d, settings, self._mask = _build(self.problem, self.dt, self.integrator,
                                                             self.precision, x64_default)
@@ -397,7 +404,8 @@ class MjxAdapter(Adapter):
         return self.step_runs([self], [steps])[0]
 
     @classmethod
-    def step_runs(cls, adapters: list[MjxAdapter], steps: list[int]) -> list[Trajectory]:
+    def step_runs(cls, adapters: list[MjxAdapter], steps: list[int],
+                  on_steps: Callable[[int, int], None] | None = None) -> list[Trajectory]:
         """Step each adapter ``steps[i]`` steps from its current state, LANES runs at a time in
         the lanes program: a lane whose run ends takes the next run at the next chunk, so runs
         of any dt and length share the program's calls.  Each run's samples are those it has
@@ -405,7 +413,8 @@ class MjxAdapter(Adapter):
         precision (ValueError) and, without :data:`NORMALISE`, their model structure
         (ValueError).  Each adapter's ``step_time_s`` grows by its share of the calls it was in,
         ``compile_time_s`` by its share of the compilation they waited for; its state moves on as
-        :meth:`advance` moves it.  Returns the trajectories (steps[i] + 1 samples each, the
+        :meth:`advance` moves it.  ``on_steps(done, total)``: after each call, the steps done
+        of all the runs' total.  Returns the trajectories (steps[i] + 1 samples each, the
         current state first), in order."""
         if len({(a.integrator, a.precision) for a in adapters}) > 1:
             raise ValueError("step_runs: the runs must share integrator and precision")
@@ -413,13 +422,20 @@ class MjxAdapter(Adapter):
         if not adapters:
             return []
         with x64_scope(adapters[0].precision == "float64"):
-            _LaneRuns(adapters, steps, out).run()
+            _LaneRuns(adapters, steps, out).run(on_steps)
         return out
 
     def close(self) -> None:
         self._m = self._d = self._mask = None
 
     # --- batched runs --------------------------------------------------------------------------
+    @classmethod
+    def runs_scope(cls, precision: str):
+        """A block in which many runs of ``precision`` are built (and stepped) at the cost of one
+        precision scope: the JAX caches are cleared on entering and leaving it, not per run
+        (see ``jax_runtime.x64_scope``)."""
+        return x64_scope(precision == "float64")
+
     @classmethod
     def simulate_batch(cls, problems: list[Problem], dt: float, steps: int,
                        integrator: str = "Euler", precision: str = "float64") -> BatchRun:
@@ -529,9 +545,12 @@ class _LaneRuns:
         self.Q: dict[int, np.ndarray] = {}  # run -> [x (3) m world, q (4) wxyz body -> world]
         self.V: dict[int, np.ndarray] = {}  # run -> [v (3) m/s world, w (3) rad/s BODY]
 
-    def run(self) -> None:
+    def run(self, on_steps: Callable[[int, int], None] | None = None) -> None:
+        total = sum(self.steps)
         while self._fill():
             self._call()
+            if on_steps is not None:
+                on_steps(sum(self.done), total)
 
     def _fill(self) -> bool:
         """Give every free lane the next run (a run of 0 steps ends at once); whether a lane

@@ -88,7 +88,8 @@ def test_run_specs_steps_mjx_runs_together_with_the_one_by_one_results(monkeypat
     specs = expand(problems, ["mjx"], ["Euler"], [0.01, 0.005], None, ["float64"])
     calls = []
     real = batching.step_together
-    monkeypatch.setattr(batching, "step_together", lambda s, note=None: calls.append(len(s)) or real(s, note))
+    monkeypatch.setattr(batching, "step_together",
+                        lambda s, **kw: calls.append(len(s)) or real(s, **kw))
     _, outputs = suite.run_specs(specs, None, ["mjx"], progress=False, isolate=False)
     assert calls == [len(specs)]
     alone = [execute(s) for s in specs]
@@ -96,16 +97,14 @@ def test_run_specs_steps_mjx_runs_together_with_the_one_by_one_results(monkeypat
 
 
 def test_what_is_not_batched(monkeypatch):
-    """The samples budget leaves later runs to go one by one; a run longer than the progress
-    threshold, or another engine's, is never batched; with --timeout nothing is."""
+    """The samples budget leaves later runs to go one by one; another engine's run is never
+    batched; with --timeout nothing is."""
     problems = [_problem(k, duration=0.02) for k in range(3)]
     specs = expand(problems, ["mjx", "mujoco"], ["Euler"], [0.01], None, ["float64"])
     mjx = [i for i, s in enumerate(specs) if s.engine == "mjx"]
     monkeypatch.setattr(batching, "MAX_BATCHED_SAMPLES", 2 * (specs[mjx[0]].steps + 1))
     done = batching.step_together(specs)
     assert sorted(done) == mjx[:2]
-    monkeypatch.setattr(batching.tol, "PROGRESS_PIECE_MIN_STEPS", 1)
-    assert batching.step_together(specs) == {}
 
     def refuse(*args, **kwargs):
         raise AssertionError("batched despite a time limit")

@@ -14,8 +14,7 @@ of the compilation.
 
 Left to be stepped one by one (same numbers, in a worker): runs of an engine that is missing,
 fails to load, is not supported in its installed version or runs in an isolated environment; a
-run whose adapter cannot be built (it records its own failure there); runs longer than
-``PROGRESS_PIECE_MIN_STEPS`` (they show their steps while stepping); runs past
+run whose adapter cannot be built (it records its own failure there); runs past
 :data:`MAX_BATCHED_SAMPLES` (the batched trajectories wait in memory for their judging); and every
 run when a per-run time limit is set (``--timeout``: a limit needs the run in a worker of its own)
 or the executor is dask.  A run that blows up is that run's divergence (decided when it is judged);
@@ -26,12 +25,13 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-from .. import tolerances as tol
 from .records import RunSpec, Simulated
 
-# engine -> the adapter classmethod stepping runs together bit for bit as alone
-# (Brax: add "brax" here once its adapter has such a method; see docs/mjx.md).
-LANE_ENGINES: dict[str, str] = {"mjx": "step_runs"}
+# engine -> (the adapter classmethod stepping runs together bit for bit as alone,
+# ``step_runs(adapters, steps, on_steps)``; the classmethod giving the context, per precision,
+# in which its runs are built and stepped, ``runs_scope(precision)``).  Brax: add "brax" here
+# once its adapter has such methods (its vmapped batch is its single run only to round-off).
+LANE_ENGINES: dict[str, tuple[str, str]] = {"mjx": ("step_runs", "runs_scope")}
 
 # At most this many samples of batched runs are held at once (a sample of a Trajectory is 15
 # float64, 120 B: 1.5 M samples ~180 MB; the default suite's MJX runs are 1.2 M); later runs go
@@ -40,10 +40,12 @@ MAX_BATCHED_SAMPLES = 1_500_000
 
 
 def step_together(specs: list[RunSpec], note: Callable[[str], None] | None = None,
+                  on_steps: Callable[[int, int, str], None] | None = None,
                   ) -> dict[int, tuple[Simulated, str | None]]:
     """Step the runs of :data:`LANE_ENGINES` engines among ``specs`` together; spec index ->
     (its Simulated, the engine it ports or None).  ``note``: told one line per group stepped
-    (engine/integrator/precision, runs, seconds)."""
+    (engine/integrator/precision, runs, seconds); ``on_steps(done, total, label)``: a group's
+    steps so far (the progress display's line while it steps)."""
     out: dict[int, tuple[Simulated, str | None]] = {}
     budget = MAX_BATCHED_SAMPLES
     for (engine, integrator, precision), members in _groups(specs).items():
@@ -55,8 +57,12 @@ def step_together(specs: list[RunSpec], note: Callable[[str], None] | None = Non
             if specs[i].steps + 1 <= budget:
                 budget -= specs[i].steps + 1
                 chosen.append(i)
+        label = f"{len(chosen)} {engine}/{integrator}/{precision} runs stepped together"
+        shown = None if on_steps is None else (lambda done, total: on_steps(done, total, label))
         t0 = time.perf_counter()
-        done = _step_group(cls, getattr(cls, LANE_ENGINES[engine]), [(i, specs[i]) for i in chosen])
+        step_name, scope_name = LANE_ENGINES[engine]
+        with getattr(cls, scope_name)(precision):
+            done = _step_group(cls, getattr(cls, step_name), [(i, specs[i]) for i in chosen], shown)
         out.update(done)
         if note is not None and done:
             note(f"{engine}/{integrator}/{precision}: {len(done)} runs stepped together "
@@ -68,8 +74,7 @@ def _groups(specs: list[RunSpec]) -> dict[tuple, list[int]]:
     """(engine, integrator, precision) -> indices of the specs that may be stepped together."""
     groups: dict[tuple, list[int]] = {}
     for i, s in enumerate(specs):
-        if (s.engine in LANE_ENGINES and s.integrator != "*"
-                and s.steps <= tol.PROGRESS_PIECE_MIN_STEPS):
+        if s.engine in LANE_ENGINES and s.integrator != "*":
             groups.setdefault((s.engine, s.integrator, s.precision), []).append(i)
     return groups
 
@@ -91,7 +96,7 @@ def _lane_class(engine: str):
         return None
 
 
-def _step_group(cls, step_runs, members: list[tuple[int, RunSpec]]) -> dict[int, tuple]:
+def _step_group(cls, step_runs, members: list[tuple[int, RunSpec]], on_steps=None) -> dict[int, tuple]:
     """Build each member's adapter (one that fails is left out: it fails again, recorded, when
     run alone), step them together, and wrap each run's samples as execute() does."""
     version = cls.engine_version()
@@ -107,7 +112,7 @@ def _step_group(cls, step_runs, members: list[tuple[int, RunSpec]]) -> dict[int,
     if not built:
         return {}
     try:
-        trajectories = step_runs([a for _, _, a in built], [s.steps for _, s, _ in built])
+        trajectories = step_runs([a for _, _, a in built], [s.steps for _, s, _ in built], on_steps)
     except Exception:  # the runs go one by one instead, and record their own failure
         return {}
     finally:

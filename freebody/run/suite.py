@@ -95,7 +95,7 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
             if simulated is None and local and timeout is None:  # a time limit needs a run alone
                 from .batching import step_together
 
-                simulated = step_together(specs, note=bar.note)  # the numbers of runs alone
+                simulated = step_together(specs, note=bar.note, on_steps=bar.steps)  # runs alone's numbers
             tasks = plan(specs, simulated=simulated,
                          save_dir=str(folder.trajectory_dir) if folder is not None and local else None,
                          save_every=save_every, ship_saved=folder is not None and not local,
