@@ -25,7 +25,9 @@ semi-implicit maps, 0.13-0.21 us for the Euler family, 0.41 us for the symplecti
 body, ``scripts/bench_reference_maps.py``).  It needs no C compiler or build step (numba and llvmlite
 install as binary wheels on a fresh machine), and ``cache=True`` keeps the machine code on disk
 (``__pycache__`` beside this file, or ``NUMBA_CACHE_DIR``): the first use on a machine compiles every
-map (about 5 s), later processes load them (about 0.4 s, ``import numba`` included).
+map (with compiled_engine_maps' about 30 s CPU: 26-30 s measured on 2 shared cores, ~0.1-0.3 s per
+compiled function, most of it numba's type inference of the tuple code), later processes load them
+(about 0.8 s, ``import numba`` included).
 
 Loads.  A case's loads are piecewise constant over steps: :class:`Loads` cuts the steps into
 segments at the steps where the set of active loads changes (``Load.step_range``) and lists each
