@@ -1,16 +1,21 @@
-"""Yardsticks for the compiled maps: each a flat numba loop of one map's arithmetic, torque-free.
+"""Yardsticks for the compiled maps: each a loop of one map's arithmetic alone, torque-free.
 
-A floor is what a map's step costs with nothing but its arithmetic: one function, scalar locals, no
-helper calls, no loads, the state written straight into the output rows.  Each performs exactly
-the floating-point operations of its map in :mod:`compiled` on a torque-free problem, in the same
-order (the zero wrench included: ``R^T 0`` gives signed zeros the map's arithmetic carries), so its
+A floor is what a map's step costs with nothing but its arithmetic: no loads, no segment look-ups,
+the state written straight into the output rows.  The floors of the semi-implicit maps and of rk4
+are flat scalar code (one loop, scalar locals); those of symplectic-splitting, implicit-midpoint and
+rkmk4 are one loop over :mod:`compiled`'s formula helpers (cross, quat_multiply, ...: LLVM inlines
+them) with the zero wrench in place of ``compiled.wrench``.  Each performs exactly the
+floating-point operations of its map in :mod:`compiled` on a torque-free problem, in the same order
+(the zero wrench included: ``R^T 0`` gives signed zeros the map's arithmetic carries), so its
 trajectory is the map's bit for bit (``tests/test_floors.py``); ``freebody bench`` times a map's
 driver (:func:`integrators.simulate`) against its floor, side by side (:func:`time_floor`).
 
 Arguments of every floor (SI units, canonical frames, see :mod:`conventions`):
-x, v : (3,) tuples, m and m/s, world.  q : (4,) tuple (w, x, y, z), body -> world, unit.
+x, v : (3,) tuples, m and m/s, world (the quaternion schemes carry p = M v, kg m/s, and L, kg m^2/s,
+    world, about the COM, instead of v and w_b).  q : (4,) tuple (w, x, y, z), body -> world, unit.
 w_b : (3,) tuple, rad/s, body frame.  dt : s.  steps : int.  M : kg.
-I_b, I_inv : 3x3 tuples of rows, kg m^2 and its inverse, body frame.  g : (3,) tuple, m/s^2, world.
+I_b, I_inv : 3x3 tuples of rows, kg m^2 and its inverse, body frame.  axes, moments (splitting):
+    the principal axes (rows, body frame) and moments I_1 <= I_2 <= I_3, kg m^2.  g : (3,) tuple, m/s^2, world.
 out_x, out_v, out_w : (steps + 1, 3) float64 C arrays; out_q : (steps + 1, 4): rows 1..steps are
 written (x, q, v, and w = R w_b in the world frame, rad/s); row 0 is the caller's.
 """
@@ -22,9 +27,13 @@ import time
 import numpy as np
 from numba import njit
 
+from .compiled import (_rkmk_sum, add, cayley_quat, dexpinv_world, div, free_rotation, matrix_from_quat,
+                       matvec, midpoint_momentum, omega_world, quat_from_rotvec, quat_multiply, quat_normalize,
+                       scale, transpose)
+from .lie_integrators import RK4_B, RK4_C
 from .rotations import EXP_SERIES_ANGLE_RAD
 
-__all__ = ["floor_semi_implicit", "floor_rk4", "FLOORS", "run_floor", "time_floor"]
+__all__ = ["floor_semi_implicit", "floor_rk4", "floor_splitting", "floor_midpoint", "floor_rkmk4", "FLOORS", "run_floor", "time_floor"]
 
 # Compiled on first use (a yardstick for the bench: never on a path `freebody run` takes).
 jit = njit(cache=True, error_model="numpy")
@@ -216,9 +225,89 @@ def _rk4_combine(y, h6, a, b, c, e):
             y[12] + h6 * (((a[12] + 2.0 * b[12]) + 2.0 * c[12]) + e[12]))
 
 
+
+# --- the Lie-group schemes: one loop each, compiled.py's formula helpers (LLVM inlines them) ------
+# The same operations as their maps' steps with the zero wrench in place of compiled.wrench (which
+# returns exactly these zeros torque-free): the floor of a driver is its loop without the loads.
+
+ZERO3 = (0.0, 0.0, 0.0)
+
+
+@jit
+def _kick(p, L, h, M, g):
+    """Half a kick of the zero wrench: p + h (0 + M g), L + h 0 (compiled.splitting_step's)."""
+    return add(p, scale(h, add(ZERO3, scale(M, g)))), add(L, scale(h, ZERO3))
+
+
+@jit
+def _put_quat_state(j, x, q, p, L, M, I_inv, out_x, out_q, out_v, out_w):
+    """Row j: x, q, v = p / M, w = R I_b^-1 R^T L (world)."""
+    out_x[j, 0], out_x[j, 1], out_x[j, 2] = x
+    out_q[j, 0], out_q[j, 1], out_q[j, 2], out_q[j, 3] = q
+    out_v[j, 0], out_v[j, 1], out_v[j, 2] = div(p, M)
+    out_w[j, 0], out_w[j, 1], out_w[j, 2] = omega_world(matrix_from_quat(q), I_inv, L)
+
+
+@jit
+def floor_splitting(x, q, p, L, dt, steps, M, axes, moments, I_inv, g, out_x, out_q, out_v, out_w):
+    """compiled.run_splitting torque-free: kick, drift (free_rotation), kick."""
+    for k in range(steps):
+        p, L = _kick(p, L, 0.5 * dt, M, g)
+        x = add(x, div(scale(dt, p), M))
+        q = free_rotation(q, L, dt, axes, moments)
+        p, L = _kick(p, L, 0.5 * dt, M, g)
+        _put_quat_state(k + 1, x, q, p, L, M, I_inv, out_x, out_q, out_v, out_w)
+
+
+@jit
+def floor_midpoint(x, q, p, L, dt, steps, M, I_inv, g, out_x, out_q, out_v, out_w):
+    """compiled.implicit_midpoint_step's run torque-free: kick, Newton on Pi, Cayley drift, kick."""
+    for k in range(steps):
+        p, L = _kick(p, L, 0.5 * dt, M, g)
+        x = add(x, div(scale(dt, p), M))
+        Pi = matvec(transpose(matrix_from_quat(q)), L)
+        w_mid = midpoint_momentum(Pi, dt, I_inv)
+        q = quat_normalize(quat_multiply(q, cayley_quat(scale(dt, w_mid))))
+        p, L = _kick(p, L, 0.5 * dt, M, g)
+        _put_quat_state(k + 1, x, q, p, L, M, I_inv, out_x, out_q, out_v, out_w)
+
+
+@jit
+def _rkmk_free_slopes(q, p, L, M, I_inv, g):
+    """compiled._rkmk_slopes with the zero wrench: (dx, w (world), dp, dL)."""
+    return div(p, M), omega_world(matrix_from_quat(q), I_inv, L), add(ZERO3, scale(M, g)), ZERO3
+
+
+@jit
+def _rkmk_free_stage(x, q, p, L, dt, c, d, K, M, I_inv, g):
+    """compiled._rkmk_stage with the zero wrench."""
+    u = scale(dt * c, K)
+    s = _rkmk_free_slopes(quat_multiply(quat_from_rotvec(u), q), add(p, scale(dt * c, d[2])),
+                          add(L, scale(dt * c, d[3])), M, I_inv, g)
+    return s, dexpinv_world(u, s[1])
+
+
+@jit
+def floor_rkmk4(x, q, p, L, dt, steps, M, I_inv, g, out_x, out_q, out_v, out_w):
+    """compiled.rkmk4_step's run torque-free: RK4 on (x, p, L), RKMK4 on q."""
+    for k in range(steps):
+        d1 = _rkmk_free_slopes(q, p, L, M, I_inv, g)
+        K1 = d1[1]
+        d2, K2 = _rkmk_free_stage(x, q, p, L, dt, RK4_C[0], d1, K1, M, I_inv, g)
+        d3, K3 = _rkmk_free_stage(x, q, p, L, dt, RK4_C[1], d2, K2, M, I_inv, g)
+        d4, K4 = _rkmk_free_stage(x, q, p, L, dt, RK4_C[2], d3, K3, M, I_inv, g)
+        u = scale(dt, add(add(add(scale(RK4_B[0], K1), scale(RK4_B[1], K2)), scale(RK4_B[2], K3)),
+                          scale(RK4_B[3], K4)))
+        x, q, p, L = (_rkmk_sum(x, dt, d1[0], d2[0], d3[0], d4[0]),
+                      quat_normalize(quat_multiply(quat_from_rotvec(u), q)),
+                      _rkmk_sum(p, dt, d1[2], d2[2], d3[2], d4[2]), _rkmk_sum(L, dt, d1[3], d2[3], d3[3], d4[3]))
+        _put_quat_state(k + 1, x, q, p, L, M, I_inv, out_x, out_q, out_v, out_w)
+
+
 # --- from a Problem ------------------------------------------------------------------------------
 
-FLOORS = ("semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro", "rk4")
+FLOORS = ("semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro", "rk4", "symplectic-splitting",
+          "implicit-midpoint", "rkmk4")
 
 
 def run_floor(problem, integrator: str, dt: float, steps: int):
@@ -236,11 +325,20 @@ def run_floor(problem, integrator: str, dt: float, steps: int):
     out = Trajectory.empty(steps + 1)
     out.position[0], out.quaternion_wxyz[0], out.linear_velocity[0], out.angular_velocity[0] = x, q, v, w
     out.t[:] = time_grid(dt, steps)
-    if integrator == "rk4":
+    rows = (out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity)
+    state = (vec(x), vec(q), vec(p), vec(L), float(dt), int(steps), float(M))
+    if integrator not in FLOORS[:2]:
         out.linear_velocity[0] = p / M
-        floor_rk4(vec(x), vec(q), vec(p), vec(L), float(dt), int(steps), float(M), mat(I_inv),
-                  vec(problem.gravity), out.position, out.quaternion_wxyz, out.linear_velocity,
-                  out.angular_velocity)
+        out.angular_velocity[0] = np.array(problem.initial.angular_velocity, float)
+    if integrator == "symplectic-splitting":
+        from .splitting import principal_frame
+
+        frame = principal_frame(I_b)
+        floor_splitting(*state, mat(frame.axes), vec(frame.moments), mat(I_inv), vec(problem.gravity), *rows)
+        return out
+    if integrator in ("rk4", "implicit-midpoint", "rkmk4"):
+        run = {"rk4": floor_rk4, "implicit-midpoint": floor_midpoint, "rkmk4": floor_rkmk4}[integrator]
+        run(*state, mat(I_inv), vec(problem.gravity), *rows)
         return out
     floor_semi_implicit(vec(x), vec(q), vec(v), vec(R.T @ w), float(dt), int(steps), float(M), mat(I_b),
                         mat(I_inv), vec(problem.gravity), integrator == "semi-implicit-implicit-gyro",
