@@ -17,6 +17,8 @@ def add_parser(sub) -> None:
     p.add_argument("--baseline", metavar="FILE",
                    help="a baseline (freebody baseline), results.json or run directory: the report "
                         "shows the compare verdict against it")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress display (by default the figures done / total on stderr)")
 
 
 def run(args) -> int:
@@ -36,6 +38,6 @@ def run(args) -> int:
         check_files(out_dir, REPORTS[:1] if args.markdown_only else REPORTS, str(out_dir))  # before the work
         doc = load_results(out_dir)
         for path in write_reports(out_dir, doc, problems, html=not args.markdown_only,
-                                  baseline=args.baseline):
+                                  baseline=args.baseline, progress=not args.quiet):
             print(f"report: {path}")
     return 0

@@ -28,10 +28,26 @@ RUN_COLUMNS = ("engine run", "dt (s)", "status", "orientation max (rad)", "orien
 ORTHONORMALITY_COLUMN = "orthonormality max (||R^T R - 1||_F)"
 
 
+# A table whose padded text would be longer than this (bytes) is written unpadded (its cells
+# only): column padding doubles the bytes of a long or wide table (the default suite's report.md:
+# 1.37 MB unpadded against 2.79 MB) and a Markdown viewer lines the columns up without it; a
+# short table stays aligned for the eye (every table of tests/golden/report.md is under 2.5 KB).
+PADDED_MAX_BYTES = 4096
+# report.md stays under this (issue 29: the default suite's report.md <= 200 KB): past it, the
+# per-case tables report.html repeats (verdict groups, runs, engine-vs-engine differences) are
+# left to report.html, and to results.json for the runs, each with a pointer (render_markdown).
+MD_BUDGET_BYTES = 200_000
+
+
 def md_table(header: tuple[str, ...] | list[str], rows: list) -> str:
-    """A Markdown pipe table, columns padded to their widths ('|' in cells escaped)."""
+    """A Markdown pipe table ('|' in cells escaped), columns padded to their widths unless that
+    makes it longer than :data:`PADDED_MAX_BYTES`."""
     cells = [[str(c).replace("|", "\\|").replace("\n", " ") for c in row] for row in [header, *rows]]
     widths = [max(len(row[i]) for row in cells) for i in range(len(header))]
+    if (sum(widths) + 3 * len(widths) + 2) * (len(cells) + 1) > PADDED_MAX_BYTES:
+        lines = ["| " + " | ".join(row) + " |" for row in cells]
+        lines.insert(1, "|" + "|".join("---" for _ in header) + "|")
+        return "\n".join(lines)
     lines = ["| " + " | ".join(c.ljust(w) for c, w in zip(row, widths)) + " |" for row in cells]
     lines.insert(1, "| " + " | ".join("-" * w for w in widths) + " |")
     return "\n".join(lines)
@@ -243,14 +259,27 @@ VERDICT_COLUMNS = ("reproduces", "dt (s)", "engine runs: distance to the map (ra
                    "orientation error max (rad)")
 
 
-def verdict_lines(runs: list[dict]) -> list[str]:
-    body = []
-    for case, case_runs in rd.by_case(runs).items():
-        body += verdict_case_lines(case, case_runs)
+def verdict_lines(runs: list[dict], compact: bool = False) -> list[str]:
+    """The "Verdict per case" section: per case its scheme groups (:func:`verdict_case_lines`); with
+    ``compact``, a pointer to report.html's tables instead (:data:`MD_BUDGET_BYTES`)."""
+    if compact:  # one judged run is enough to need the pointer
+        judged = any(fd.scheme_groups(case_runs) for case_runs in rd.by_case(runs).values())
+        body = ["judged"] if judged else []
+    else:
+        body = [line for case, case_runs in rd.by_case(runs).items() for line in verdict_case_lines(case, case_runs)]
     if not body:
         return ["## Verdict per case", "", "No engine run was judged against the reference maps (only the "
                 "reference engine ran, or no engine run was ok).", ""]
+    if compact:
+        return ["## Verdict per case", "", fd.VERDICT_NOTE, "", VERDICT_MOVED, ""]
     return ["## Verdict per case", "", fd.VERDICT_NOTE, "", fd.BETWEEN_NOTE, "", *body]
+
+
+VERDICT_MOVED = ("The tables of each case's groups (engine runs per reference map and time step, with their "
+                 "distances to the map, and the differences between the groups) are in "
+                 "[report.html](report.html#verdict): with them, report.md would exceed its size budget. "
+                 "Each run's verdict is also in results.json (`runs[].judgement`); the reference map each "
+                 "engine run reproduces is tabled below.")
 
 
 ERROR_TABLES_NOTE = ("One table per time step (a maximum over time steps would show the coarsest only); "
@@ -305,25 +334,34 @@ def overview_lines(doc: dict) -> list[str]:
     return out
 
 
-def front_matter(doc: dict, source: str, found: list[fd.Finding] | None = None, comparison=None) -> list[str]:
-    """The report's first part: header, findings, comparison with a baseline, the verdict per case,
-    then the overview tables."""
+def front_matter(doc: dict, source: str, found: list[fd.Finding] | None = None, comparison=None,
+                 compact: bool = False) -> list[str]:
+    """The report's first part: header, findings, comparison with a baseline, the verdict per case
+    (with ``compact``: a pointer to report.html's tables), then the overview tables."""
     runs = doc.get("runs") or []
     if found is None:
         found = fd.find(runs, convergence=doc.get("convergence"), cases=doc.get("cases"))
     out = header_lines(doc, source) + findings_lines(found, runs, comparison)
     if comparison is not None:
         out += compare_lines(comparison)
-    return out + verdict_lines(runs) + overview_lines(doc)
+    return out + verdict_lines(runs, compact) + overview_lines(doc)
 
 
 def case_section(case: str, runs: list[dict], convergence: list[dict],
                  physics: rd.CasePhysics | None, out_dir: Path | None,
-                 pairs: list[rd.Pair] | None = None) -> list[str]:
+                 pairs: list[rd.Pair] | None = None, compact: bool = False) -> list[str]:
+    """One case's section: its description, runs, what was not ok, observed orders and the
+    engines' differences at the end.  With ``compact`` (:data:`MD_BUDGET_BYTES`) the runs and the
+    differences are pointers to report.html's tables (and results.json's runs)."""
     out = [f"## Case `{case}`", ""]
     if physics is not None:
         out += [*physics.lines(), ""]
-    out += ["### Runs", "", md_table(*run_table(runs)), ""]
+    if compact:
+        out += ["### Runs", "", f"{len(runs)} runs: the table is in [report.html](report.html#"
+                f"{rd.case_anchor(case)}) and each run's metrics in results.json (`runs[]`, case "
+                f"`{case}`).", ""]
+    else:
+        out += ["### Runs", "", md_table(*run_table(runs)), ""]
     bad = not_ok_lines(runs)
     if bad:
         out += ["Not ok:", "", *bad, ""]
@@ -336,7 +374,10 @@ def case_section(case: str, runs: list[dict], convergence: list[dict],
     out += ["### Engines at the end", ""]
     if pairs is None:
         pairs = rd.pairwise(runs, physics, out_dir)
-    if pairs:
+    if pairs and compact:
+        out += [f"{len(pairs)} pairs of runs of different engines at the same time step: their "
+                f"final-state differences are tabled in [report.html](report.html#{rd.case_anchor(case)}).", ""]
+    elif pairs:
         if physics is None:
             out += ["L and E differences need the case's mass and inertia, which this results.json "
                     "does not hold (pass `--case PATH` to `freebody report`).", ""]
@@ -366,8 +407,19 @@ def render_markdown(doc: dict, convergence: list[dict], physics: dict[str, rd.Ca
     name -> :func:`report_data.pairwise` (computed here when not given); ``found``: the findings
     (:func:`freebody.report.findings.find`, computed here without trajectories when not given);
     ``comparison``: a :class:`freebody.results.compare.Comparison` with a baseline, or None."""
-    lines = front_matter(doc, source, found, comparison) + observed_order_lines(convergence, doc.get("runs") or [],
-                                                                                   doc.get("cases"))
-    for case, runs in rd.by_case(doc.get("runs") or []).items():
-        lines += case_section(case, runs, convergence, physics.get(case), out_dir, (pairs or {}).get(case))
-    return "\n".join(lines).rstrip() + "\n"
+    runs = doc.get("runs") or []
+    if found is None:
+        found = fd.find(runs, convergence=doc.get("convergence"), cases=doc.get("cases"))
+    pairs = {c: (pairs or {}).get(c) for c in rd.by_case(runs)}
+    pairs = {c: rd.pairwise(rs, physics.get(c), out_dir) if pairs[c] is None else pairs[c]
+             for c, rs in rd.by_case(runs).items()}
+    text = ""
+    for compact in (False, True):  # the whole report, or within its budget (MD_BUDGET_BYTES)
+        lines = front_matter(doc, source, found, comparison, compact) + observed_order_lines(
+            convergence, runs, doc.get("cases"))
+        for case, case_runs in rd.by_case(runs).items():
+            lines += case_section(case, case_runs, convergence, physics.get(case), out_dir, pairs[case], compact)
+        text = "\n".join(lines).rstrip() + "\n"
+        if len(text.encode("utf-8")) <= MD_BUDGET_BYTES:
+            break
+    return text

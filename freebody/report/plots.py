@@ -60,6 +60,85 @@ def _figure(width_in: float, height_in: float):
     return Figure(figsize=(width_in, height_in), dpi=DPI)
 
 
+# Text layouts and extents kept per process (:func:`agg_canvas`): the same tick labels, titles
+# and legend entries recur in every figure of a report; cleared beyond this many entries.
+TEXT_CACHE_ENTRIES = 20_000
+_CANVAS_CLASS = None
+
+
+def agg_canvas(fig):
+    """An Agg canvas of ``fig`` whose renderer lays out each text once per process.
+
+    matplotlib's Agg renderer shapes a text's glyphs (FreeType, ~0.7 ms) every time it draws it,
+    and measures it afresh for every new renderer (one per figure): the default suite's report
+    draws and measures the same few hundred strings (tick labels, titles, legend entries) in
+    every one of its figures.  The renderer here keeps a text's layout (glyphs and their offsets)
+    and its extent, keyed by the font files, size, dpi, hinting, features and language: pure
+    functions of those, so the pixels are the same bytes (tests/test_report_figures.py).  With a
+    matplotlib lacking the private layout API it uses, the plain Agg canvas."""
+    global _CANVAS_CLASS
+    if _CANVAS_CLASS is None:
+        _CANVAS_CLASS = _cached_text_canvas()
+    return _CANVAS_CLASS(fig)
+
+
+def _cached_text_canvas():
+    """The canvas class of :func:`agg_canvas` (built on first use: matplotlib is imported lazily)."""
+    from matplotlib.backends import backend_agg as agg
+    from matplotlib.font_manager import fontManager
+
+    if not (hasattr(agg.RendererAgg, "_draw_text_glyphs_and_boxes") and hasattr(agg, "get_hinting_flag")
+            and hasattr(fontManager, "_find_fonts_by_props")
+            and hasattr(agg.RendererAgg, "_prepare_font")):
+        return agg.FigureCanvasAgg
+    layouts: dict = {}
+    extents: dict = {}
+
+    class Renderer(agg.RendererAgg):
+        def _text_key(self, s, prop) -> tuple:
+            return (tuple(fontManager._find_fonts_by_props(prop)), prop.get_size_in_points(), self.dpi,
+                    agg.get_hinting_flag(), s)
+
+        def draw_text(self, gc, x, y, s, prop, angle, ismath=False, mtext=None):
+            if ismath:
+                return super().draw_text(gc, x, y, s, prop, angle, ismath, mtext)
+            features = mtext.get_fontfeatures() if mtext is not None else None
+            language = mtext.get_language() if mtext is not None else None
+            key = (self._text_key(s, prop), repr(features), repr(language))
+            items = layouts.get(key)
+            if items is None:
+                font = self._prepare_font(prop)
+                items = [(item.ft_object, item.glyph_index, item.x, item.y) for item in
+                         font._layout(s, flags=agg.get_hinting_flag(), features=features, language=language)]
+                if len(layouts) >= TEXT_CACHE_ENTRIES:
+                    layouts.clear()
+                layouts[key] = items
+            size = prop.get_size_in_points()
+            self._draw_text_glyphs_and_boxes(gc, x, y, angle, ((ft, size, glyph, 0, 1, dx, dy)
+                                                               for ft, glyph, dx, dy in items), [])
+
+        def get_text_width_height_descent(self, s, prop, ismath):
+            if ismath:
+                return super().get_text_width_height_descent(s, prop, ismath)
+            key = self._text_key(s, prop)
+            if key not in extents:
+                if len(extents) >= TEXT_CACHE_ENTRIES:
+                    extents.clear()
+                extents[key] = super().get_text_width_height_descent(s, prop, ismath)
+            return extents[key]
+
+    class Canvas(agg.FigureCanvasAgg):
+        def get_renderer(self):  # FigureCanvasAgg's, with the Renderer above
+            w, h = self.get_width_height(physical=True)
+            key = w, h, self.figure.dpi
+            if self._lastKey != key:
+                self.renderer = Renderer(w, h, self.figure.dpi)
+                self._lastKey = key
+            return self.renderer
+
+    return Canvas
+
+
 # An opaque figure is stored as a PNG of at most this many colours (a palette picked per image by
 # PIL's fast octree, no dithering): line plots use a few dozen colours and their anti-aliased
 # edges; measured on the default suite's 38 figures: 6.0 MB -> 2.0 MB of PNG (report.html 8.5 MB ->
@@ -118,9 +197,8 @@ def text_overflow(fig, renderer=None) -> tuple[tuple[float, float, float, float]
 
 def clipped_texts(fig) -> list[str]:
     """The texts of a figure (drawn here on the Agg canvas) that extend beyond it: [] when none."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    canvas = FigureCanvasAgg(fig)
+    canvas = agg_canvas(fig)
     canvas.draw()
     return text_overflow(fig, canvas.get_renderer())[1]
 
@@ -129,7 +207,6 @@ def fit_texts(fig, canvas):
     """Grow a drawn figure by the margins its texts overflow (long tick labels, a legend), keeping
     every axes' size in inches and moving it inwards; redraw.  Returns (the canvas to read, the
     texts still beyond the figure: [] unless growing did not help)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
 
     for _ in range(3):
         (left, bottom, right, top), names = text_overflow(fig, canvas.get_renderer())
@@ -144,7 +221,7 @@ def fit_texts(fig, canvas):
             x0, y0, aw, ah = ax.get_position().bounds
             ax.set_position(((x0 * w + grow[0]) / nw, (y0 * h + grow[1]) / nh, aw * w / nw, ah * h / nh))
         fig.set_size_inches(nw, nh)
-        canvas = FigureCanvasAgg(fig)
+        canvas = agg_canvas(fig)
         canvas.draw()
     return canvas, text_overflow(fig, canvas.get_renderer())[1]
 
@@ -184,11 +261,10 @@ def png_bytes(fig) -> bytes:
     Every text must lie inside the figure: the figure is grown where one overflows
     (:func:`fit_texts`); one that still does raises :class:`ClippedText` under pytest (or with
     FREEBODY_STRICT_FIGURES=1), else warns."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from PIL import Image
 
     _unlog_empty_axes(fig)
-    canvas = FigureCanvasAgg(fig)
+    canvas = agg_canvas(fig)
     canvas.draw()
     canvas, names = fit_texts(fig, canvas)
     if names:
@@ -698,14 +774,22 @@ def _usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
+def figure_count(runs: list[dict]) -> int:
+    """The number of figures :func:`render_figures` draws for these runs (3 summary figures and
+    one per case and dt)."""
+    return 3 + sum(len(rd.dts(case_runs)) for case_runs in rd.by_case(runs).values())
+
+
 def render_figures(runs: list[dict], conv: list[dict], physics: dict, out_dir: Path,
-                   jobs: int | None = None) -> tuple[dict, dict]:
+                   jobs: int | None = None, on_figure=None) -> tuple[dict, dict]:
     """Every figure of report.html: ({'heatmap', 'convergence', 'speed', (case, dt): PNG bytes or
     None}, {case: notes about runs that could not be drawn}).
 
     jobs : processes drawing the figures (the figures are independent); default: one per usable
-    CPU when there are more than SERIAL_FIGURES per-case figures, else this process alone.  The
-    figures are the same whatever ``jobs`` is."""
+        CPU when there are more than SERIAL_FIGURES per-case figures, else this process alone.  The
+        figures are the same whatever ``jobs`` is.
+    on_figure : called with a figure's name ("heatmap", "case, dt = 0.01 s", ...) as each is done
+        (a progress display: :func:`figure_count` figures in all), or None."""
     all_labels = rd.labels(runs)
     tasks = [("heatmap", "heatmap", runs), ("convergence", "convergence", runs, conv),
              ("speed", "speed", runs)]
@@ -717,7 +801,14 @@ def render_figures(runs: list[dict], conv: list[dict], physics: dict, out_dir: P
     n_case = len(tasks) - 3
     if jobs is None:
         jobs = _usable_cpus() if n_case > SERIAL_FIGURES else 1
-    results = _render_parallel(tasks, jobs) if jobs > 1 else [_figure_task(t) for t in tasks]
+    done = (lambda key: on_figure(_figure_name(key))) if on_figure is not None else (lambda key: None)
+    if jobs > 1:
+        results = _render_parallel(tasks, jobs, done)
+    else:
+        results = []
+        for t in tasks:
+            results.append(_figure_task(t))
+            done(t[0])
     order = {t[0]: i for i, t in enumerate(tasks)}
     figures: dict = {}
     notes: dict = {}
@@ -728,18 +819,30 @@ def render_figures(runs: list[dict], conv: list[dict], physics: dict, out_dir: P
     return figures, notes
 
 
-def _render_parallel(tasks: list[tuple], jobs: int) -> list:
+def _figure_name(key) -> str:
+    """A figure's name in the progress display."""
+    return key if isinstance(key, str) else f"{key[0]}, dt = {key[1]:g} s"
+
+
+# The summary figures' cost in samples of a per-case figure (they read no trajectory, but draw a
+# panel per case: measured on the default suite, each costs 3-4 per-case figures of 33 runs): they
+# are dealt out first, so that none is left alone at the end while the other workers idle.
+SUMMARY_COST_SAMPLES = 10**12
+
+
+def _render_parallel(tasks: list[tuple], jobs: int, done=lambda key: None) -> list:
     """The tasks' results, drawn by up to ``jobs`` worker processes (``python -m
     freebody.report.plots``: started afresh, so nothing of the caller's ``__main__`` is re-run),
-    the heaviest figures first, each worker given the next task as it finishes one.  A task a
-    worker could not draw (it failed, or no worker could start) is drawn here."""
+    the heaviest figures first (the summary figures, then the per-case ones by samples), each
+    worker given the next task as it finishes one; ``done(key)`` is called as each figure
+    arrives.  A task a worker could not draw (it failed, or no worker could start) is drawn here."""
     import pickle
     import subprocess
     import sys
     from multiprocessing.connection import wait
 
     def size(t: tuple) -> int:  # the samples to read: the heaviest figures go first
-        return sum(int(r.get("steps") or 0) for r in t[2]) if t[1] == "case" else 0
+        return sum(int(r.get("steps") or 0) for r in t[2]) if t[1] == "case" else SUMMARY_COST_SAMPLES
 
     pending = sorted(tasks, key=size, reverse=True)
     results: list = []
@@ -779,6 +882,7 @@ def _render_parallel(tasks: list[tuple], jobs: int) -> list:
                 except (EOFError, OSError, pickle.UnpicklingError):
                     ok, payload = False, None
                 results.append(payload if ok else _figure_task(task))
+                done(task[0])
                 if ok:
                     give(w)
         finished = True
@@ -797,7 +901,9 @@ def _render_parallel(tasks: list[tuple], jobs: int) -> list:
                 w.kill()
                 w.wait()
             w.stdout.close()
-    results += [_figure_task(t) for t in pending]  # none left unless every worker failed
+    for t in list(pending):  # none left unless every worker failed
+        results.append(_figure_task(t))
+        done(t[0])
     return results
 
 

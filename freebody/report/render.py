@@ -6,6 +6,7 @@ which re-renders both from results.json and the trajectory files without running
 """
 from __future__ import annotations
 
+import sys
 import warnings
 from pathlib import Path
 
@@ -60,17 +61,22 @@ def compare_with(baseline, doc: dict, current: str = "this run"):
 
 
 def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None = None,
-                  html: bool = True, baseline=None) -> list[Path]:
+                  html: bool = True, baseline=None, progress: bool = False) -> list[Path]:
     """Write ``out_dir/report.md`` and (unless ``html`` is False) ``out_dir/report.html``.
 
     doc : the results document (default: ``out_dir/results.json``).
     problems : case name -> Problem, for cases that results.json does not describe.
     baseline : a baseline (file, results.json, run directory or dict) to compare the results with:
         the reports then show the verdict of ``freebody compare`` (a finding and a section).
+    progress : show the figures done / total on standard error (:class:`freebody.run.progress.
+        ProgressDisplay`: on a terminal one line rewritten; in a log, when worker processes draw
+        the figures, a line at the first and the last figure and at most every LOG_INTERVAL_S).
     Returns the paths written.  A run whose trajectory is not a regular file inside ``out_dir``
     (:func:`freebody.results.document.usable_trajectories`) is drawn without it, with a warning.
+
+    When the figures are drawn by worker processes (more than plots.SERIAL_FIGURES of them), they
+    are started first and drawn while this process writes report.md (:class:`_Figures`).
     """
-    from . import findings as fd
     from .markdown import render_markdown
 
     from ..results.document import load_results, usable_trajectories
@@ -83,32 +89,109 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     conv = convergence_of(doc)
     runs = doc.get("runs") or []
     physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}
-    pairs = {c: rd.pairwise(rs, physics[c], out_dir) for c, rs in rd.by_case(runs).items()}
-    found = fd.find(runs, rd.trajectory_reader(out_dir), conv, doc.get("cases"))
-    comparison = compare_with(baseline, doc, str(out_dir)) if baseline is not None else None
-    md_path = out_dir / "report.md"
-    write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs, found=found,
-                                               comparison=comparison))
-    written = [md_path]
-    if html:
-        from . import plots as plots
-        from .html import render_html
+    figures = _Figures(runs, conv, physics, out_dir, progress) if html else None
+    try:
+        if figures is not None and figures.parallel:
+            figures.start()  # the workers draw while report.md is written
+        pairs, found, comparison = _tables_data(doc, runs, conv, physics, out_dir, baseline)
+        md_path = out_dir / "report.md"
+        write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs, found=found,
+                                                   comparison=comparison))
+        written = [md_path]
+        if figures is not None:
+            from .html import render_html
 
-        figures, notes = plots.render_figures(runs, conv, physics, out_dir)
-        html_path = out_dir / "report.html"
-        write_text_atomic(html_path, render_html(doc, conv, physics, figures, notes, out_dir, pairs=pairs,
-                                                 found=found, comparison=comparison))
-        written.append(html_path)
+            figs, notes = figures.result()
+            html_path = out_dir / "report.html"
+            write_text_atomic(html_path, render_html(doc, conv, physics, figs, notes, out_dir, pairs=pairs,
+                                                     found=found, comparison=comparison))
+            written.append(html_path)
+    finally:
+        if figures is not None:
+            figures.stop()
     return written
 
 
+def _tables_data(doc: dict, runs: list[dict], conv: list[dict], physics: dict, out_dir: Path, baseline):
+    """(the engine-vs-engine pairs per case, the findings, the comparison with ``baseline`` or
+    None): what report.md and report.html both show, computed once."""
+    from . import findings as fd
+
+    pairs = {c: rd.pairwise(rs, physics[c], out_dir) for c, rs in rd.by_case(runs).items()}
+    found = fd.find(runs, rd.trajectory_reader(out_dir), conv, doc.get("cases"))
+    comparison = compare_with(baseline, doc, str(out_dir)) if baseline is not None else None
+    return pairs, found, comparison
+
+
+class _FiguresStopped(Exception):
+    """The report failed or was interrupted while its figures were drawn: the workers stop."""
+
+
+class _Figures:
+    """The figures of report.html (:func:`freebody.report.plots.render_figures`), drawn in a
+    thread of this process that feeds the worker processes (``start``, then ``result``), or here
+    when ``result`` is called first; with a progress display of the figures done / total."""
+
+    def __init__(self, runs: list[dict], conv: list[dict], physics: dict, out_dir: Path, progress: bool):
+        import threading
+
+        from . import plots
+        from ..run.progress import ProgressDisplay
+
+        self.args = (runs, conv, physics, out_dir)
+        total = plots.figure_count(runs)
+        self.parallel = total - 3 > plots.SERIAL_FIGURES  # as render_figures decides
+        # shown on a terminal, and in a log when the figures take long (worker processes draw them):
+        # a report of a few figures takes seconds, and its log stays the warnings alone
+        shown = progress and (self.parallel or bool(getattr(sys.stderr, "isatty", lambda: False)()))
+        self.display = ProgressDisplay(total, unit="figures", enabled=shown, every=total)
+        self.stopping = threading.Event()
+        self.thread = None
+        self.outcome = None  # (figures, notes), or the exception raised drawing them
+
+    def _done(self, name: str) -> None:
+        if self.stopping.is_set():
+            raise _FiguresStopped  # render_figures ends its workers
+        self.display.update(name)
+
+    def _draw(self) -> None:
+        from . import plots
+
+        try:
+            self.outcome = plots.render_figures(*self.args, on_figure=self._done)
+        except BaseException as e:  # handed to result()
+            self.outcome = e
+
+    def start(self) -> None:
+        import threading
+
+        self.thread = threading.Thread(target=self._draw, name="report-figures", daemon=True)
+        self.thread.start()
+
+    def result(self) -> tuple[dict, dict]:
+        if self.thread is None:
+            self._draw()
+        else:
+            self.thread.join()
+        if isinstance(self.outcome, BaseException):
+            raise self.outcome
+        return self.outcome
+
+    def stop(self) -> None:
+        """After the report (written, or failed): a thread still drawing stops at its next figure."""
+        self.stopping.set()
+        if self.thread is not None:
+            self.thread.join()
+
+
 def finish_run(out_dir: Path, doc: dict, problems: dict, report: bool = True,
-               baseline=None, defaults: dict[str, list[str]] | None = None) -> tuple[dict, list[Path]]:
+               baseline=None, defaults: dict[str, list[str]] | None = None,
+               progress: bool = False) -> tuple[dict, list[Path]]:
     """After ``freebody run``: re-write results.json (atomically) with the fitted orders and the
-    cases, then write the reports (compared with ``baseline`` when given).  Returns (the document,
-    the report paths written)."""
+    cases, then write the reports (compared with ``baseline`` when given; ``progress``: the
+    figures done / total on standard error).  Returns (the document, the report paths written)."""
     doc = augment(doc, problems, defaults)
     write_json_atomic(Path(out_dir) / "results.json", doc)
-    paths = write_reports(out_dir, doc, problems, baseline=baseline) if report else []
+    paths = write_reports(out_dir, doc, problems, baseline=baseline, progress=progress) if report else []
     return doc, paths
 
