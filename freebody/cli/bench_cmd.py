@@ -24,7 +24,7 @@ def add_parser(sub) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the text summary")
     p.add_argument("--quick", action="store_true",
                    help="fewer steps and repeats, a slice of the suite without MJX, a 10-body sweep, a "
-                        "1e5-step RSS run, no cold compile: about two minutes here (the suite, sweep "
+                        "1e5-step RSS run, no cold compile: 2 to 5 minutes here (the suite, sweep "
                         "and output targets shown, not judged)")
     p.add_argument("--cold", action="store_true",
                    help="measure the cold compilation (with --quick too) and give the suite's cold run "
