@@ -701,7 +701,7 @@ class Identification:
         self.closed = {name: False for name in self.names}  # a sample where the map tells nothing, so far
         self.diffs: dict[str, float | None] = {name: 0.0 for name in self.names}
         self.ratios: dict[str, float | None] = {name: 0.0 for name in self.names}
-        self.within = {pair: True for pair in itertools.combinations(self.names, 2)}
+        self.apart: set[tuple[str, str]] = set()  # pairs of maps found apart (beyond their levels) so far
         self.n = 0
 
     def update(self, q: np.ndarray) -> None:
@@ -719,21 +719,23 @@ class Identification:
             level = piece.level[:n]
             with np.errstate(invalid="ignore"):
                 d = _angle(piece.q[:n], q)
+                finite = np.isfinite(d)
                 # the samples where the map can tell anything: its level below the cap, both finite
-                open_ = (level < tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD) & np.isfinite(d)
-            if not np.all(open_):
+                open_ = (level < tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD) & finite
+            if not open_.all():
                 self.closed[name] = True
             if self.diffs[name] is not None:
-                self.diffs[name] = max(self.diffs[name], float(np.max(d))) if np.all(np.isfinite(d)) else None
+                self.diffs[name] = max(self.diffs[name], float(d.max())) if finite.all() else None
             if self.ratios[name] is None:
                 continue
-            if np.any(open_):
-                self.ratios[name] = max(self.ratios[name], float(np.max(d[open_] / level[open_])))
+            if open_.any():
+                self.ratios[name] = max(self.ratios[name], float((d[open_] / level[open_]).max()))
             if self.ratios[name] <= 1.0 and not self.closed[name]:
                 kept[name] = (piece.q[:n], level)
-        for a, b in self.within:  # the tie: only maps that still reproduce the run matter
-            if self.within[(a, b)] and a in kept and b in kept:
-                self.within[(a, b)] = _within(kept[a], kept[b])
+        # the tie: only maps that still reproduce the run matter (kept, in candidate order)
+        for pair in itertools.combinations(kept, 2):
+            if pair not in self.apart and not _within(kept[pair[0]], kept[pair[1]]):
+                self.apart.add(pair)
         self.n += n
 
     def _next_piece(self, name: str, k0: int) -> "MapPiece":
@@ -757,7 +759,7 @@ class Identification:
                             key=ratios.get)
         tie: list[str] = []
         for name in reproduced:  # the best first; each further map within round-off of those kept
-            if all(self.within[_pair(self.names, name, other)] for other in tie):
+            if all(_pair(self.names, name, other) not in self.apart for other in tie):
                 tie.append(name)
         finite = {k: v for k, v in diffs.items() if v is not None}
         nearest = min(finite, key=finite.get) if finite else None
