@@ -94,8 +94,8 @@ computed (never raising :class:`~freebody.adapters.base.EngineDiverged`); the ha
 (non-finite values, and its bounds on a huge but finite state).
 
 Batches.  Every run, alone or with others, is one lane of the same :data:`LANES`-wide program
-(``jax.vmap`` of the chunk over every argument): a run alone is lane 0 beside idle copies of
-itself.  At a fixed width a lane's numbers depend neither on its position nor on the other lanes,
+(``jax.vmap`` of the chunk over every argument; the chunk itself for LANES = 1, the default): a
+run alone is lane 0 beside idle copies of itself.  At a fixed width a lane's numbers depend neither on its position nor on the other lanes,
 so :meth:`MjxAdapter.step_runs` (runs of one integrator and precision, any dt and length, a lane
 refilled when its run ends; ``freebody run`` uses it through :mod:`freebody.run.batching`) and
 :meth:`MjxAdapter.simulate_batch` (``supports_batch`` is True; ``freebody sweep``) give each run
@@ -282,17 +282,21 @@ def _chunk(m, d, rows, n, mask=None):
     return d, Q, V
 
 
-# Every MJX run, alone or stepped with others, is one lane of this LANES-wide program: the chunk
-# vmapped over every argument (model, data, load rows, real steps, mass-matrix mask).  XLA's CPU
-# code for a vmapped computation depends on the batch width (measured with mujoco-mjx 3.17,
-# jax 0.10: widths 1, 3, 4 and 7 give another last bit than 2, 8 and 16), but a lane's numbers do
-# not depend on its position nor on the other lanes' contents at a fixed width; so with one fixed
-# width a run is bit for bit the same alone (its lane and LANES - 1 idle copies) or batched.
-# Measured on the default suite's 282 MJX runs (each (integrator, precision) has one run of
-# 100 000 steps, which sets the number of calls): CPU 43 s at width 2, 55 s at 4, 61 s at 8; a run
-# alone costs the least at 2 as well.
-LANES = 2
+# Every MJX run, alone or stepped with others, is one lane of a LANES-wide program: for LANES > 1
+# the chunk vmapped over every argument (model, data, load rows, real steps, mass-matrix mask); for
+# LANES = 1 the chunk itself (the unbatched program, the runs stepped one after another).  XLA's
+# CPU code for a vmapped computation depends on the batch width (measured with mujoco-mjx 3.17,
+# jax 0.10: the unbatched program and widths 1, 3, 4, 7 give other last bits than widths 2, 8,
+# 16), but a lane's numbers do not depend on its position nor on the other lanes' contents at a
+# fixed width; so with one fixed width a run is bit for bit the same alone or stepped with others.
+# LANES = 1 keeps every MJX number of freebody 0.2.0 before issue 29 bit for bit; LANES = 2 steps
+# the default suite's 282 MJX runs in 43 s CPU instead of about 60 (55 s at 4, 61 s at 8: its runs
+# of 100 000 steps set the number of calls) but moves every MJX trajectory by round-off, which
+# changed 14 of those runs' verdicts (10 float32 scheme identifications at the margin, 4 blow-up
+# times of high_spin_dt_10ms by 0.01-0.06 s).
+LANES = 1
 _lanes_jit = jax.jit(jax.vmap(_chunk, in_axes=(0, 0, 0, 0, 0)))
+_chunk_jit = jax.jit(_chunk)  # LANES = 1: the run alone, unbatched
 
 
 # --- building -----------------------------------------------------------------------------------
@@ -518,14 +522,23 @@ class _Lanes:
         (LANES, CHUNK_STEPS, LOAD_ROW).  Returns (qpos (LANES, CHUNK_STEPS, 7), qvel
         (LANES, CHUNK_STEPS, 6) in the run's precision, rows ns[j].. of lane j repeating its last
         state; seconds compiling; seconds stepping)."""
-        args = (jax.tree_util.tree_unflatten(self.model_def, self.model),
-                jax.tree_util.tree_unflatten(self.data_def, self.data), rows, ns, self.mask)
-        fn, spent = compiled("lanes", _lanes_jit, self.precision, args, extra=(LANES,),
-                             label=self.integrator, lowering=_masked_make_m)
+        if LANES == 1:  # the unbatched program (another last bit: see LANES)
+            args = (jax.tree_util.tree_unflatten(self.model_def, [x[0] for x in self.model]),
+                    jax.tree_util.tree_unflatten(self.data_def, [x[0] for x in self.data]),
+                    rows[0], jnp.int32(ns[0]), None if self.mask is None else self.mask[0])
+            fn, spent = compiled("chunk", _chunk_jit, self.precision, args,
+                                 label=self.integrator, lowering=_masked_make_m)
+        else:
+            args = (jax.tree_util.tree_unflatten(self.model_def, self.model),
+                    jax.tree_util.tree_unflatten(self.data_def, self.data), rows, ns, self.mask)
+            fn, spent = compiled("lanes", _lanes_jit, self.precision, args, extra=(LANES,),
+                                 label=self.integrator, lowering=_masked_make_m)
         t0 = time.perf_counter()
         data, Q, V = fn(*args)
         Q, V = np.asarray(Q), np.asarray(V)
         self.data = [np.array(x) for x in jax.tree_util.tree_leaves(data)]
+        if LANES == 1:
+            Q, V, self.data = Q[None], V[None], [x[None] for x in self.data]
         stepped = time.perf_counter() - t0
         if Q.dtype != _DTYPE[self.precision]:
             raise RuntimeError(f"mjx computed qpos in {Q.dtype}, not {self.precision}")

@@ -4,8 +4,8 @@ batched goes one by one (skipped without the ``jax`` extra).
 
 Arrays follow freebody's canonical convention (reference_impl/conventions.py): quaternions
 (w, x, y, z) body -> world, COM position/velocity in world (m, m/s), angular velocity in world
-(rad/s).  Only Euler is compiled here (the float64 and float32 lanes programs, shared with
-tests/test_mjx_adapter.py), with short horizons.
+(rad/s).  Only Euler is compiled here (the unbatched float64 program, shared with
+tests/test_mjx_adapter.py, and the 2-lane float64 and float32 ones), with short horizons.
 """
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ import pytest
 pytest.importorskip("jax", reason="jax not installed (pip install 'freebody[jax]')")
 pytest.importorskip("mujoco.mjx", reason="mujoco-mjx not installed (pip install 'freebody[jax]')")
 
-from freebody.adapters.mjx_adapter import CHUNK_STEPS, LANES, MjxAdapter  # noqa: E402
+from freebody.adapters import mjx_adapter  # noqa: E402
+from freebody.adapters.mjx_adapter import CHUNK_STEPS, MjxAdapter  # noqa: E402
 from freebody.reference_impl.problem import Body, InitialState, Load, Problem  # noqa: E402
 from freebody.run import batching, execute, expand  # noqa: E402
 from freebody.run import suite  # noqa: E402
@@ -38,13 +39,15 @@ def _same(a, b) -> bool:
     return all(np.array_equal(getattr(a, f), getattr(b, f)) for f in FIELDS)
 
 
-@pytest.mark.parametrize("precision", ["float64", "float32"])
-def test_runs_stepped_together_are_the_runs_alone_bit_for_bit(precision):
+@pytest.mark.parametrize("precision, lanes", [("float64", 1), ("float64", 2), ("float32", 2)])
+def test_runs_stepped_together_are_the_runs_alone_bit_for_bit(precision, lanes, monkeypatch):
     """More runs than lanes, of different dt and lengths (0 steps, under and over a chunk): a lane
-    is refilled mid-way, and every run still has its one-by-one samples exactly."""
+    is refilled mid-way, and every run still has its one-by-one samples exactly (at the default
+    width and at a vmapped one)."""
+    monkeypatch.setattr(mjx_adapter, "LANES", lanes)
     dts = [0.01, 0.001, 0.005, 0.01, 0.002, 0.001, 0.01, 0.004, 0.001, 0.01]
     steps = [5, 0, CHUNK_STEPS + 3, 40, 7, 2, 12, 1, 30, CHUNK_STEPS]
-    assert len(dts) > LANES
+    assert len(dts) > mjx_adapter.LANES
     problems = [_problem(k) for k in range(len(dts))]
     alone = [MjxAdapter(p, dt, "Euler", precision).simulate(n) for p, dt, n in zip(problems, dts, steps)]
     adapters = [MjxAdapter(p, dt, "Euler", precision) for p, dt in zip(problems, dts)]
@@ -58,8 +61,9 @@ def test_runs_stepped_together_are_the_runs_alone_bit_for_bit(precision):
     assert _same(more[0], single.simulate(3))
 
 
-def test_a_blow_up_is_its_own_runs():
+def test_a_blow_up_is_its_own_runs(monkeypatch):
     """A body that turns non-finite in its lane leaves the others' samples as they are alone."""
+    monkeypatch.setattr(mjx_adapter, "LANES", 2)
     # Euler at dt 0.01 spinning 50 rad/s about the middle axis: non-finite at t = 1.89 s
     wild = Problem("wild", "", Body(1.0, np.diag([1.0, 2.0, 3.0])),
                    InitialState([0, 0, 0], [1, 0, 0, 0], [0, 0, 0], [0.1, 50.0, 0.0]),
