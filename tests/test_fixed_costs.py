@@ -143,3 +143,61 @@ def test_a_worker_imports_only_what_its_run_needs():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+@pytest.mark.parametrize("jobs, locked", [(1, False), (2, True)])
+def test_workers_of_a_shared_pool_are_told_to_compile_once(jobs, locked):
+    """Two workers or more get the file of the compile lock (in the pool's store); one gets none."""
+    from freebody.reference_impl.compiled_lock import COMPILE_LOCK_ENV
+    from freebody.run.executor import LocalPool
+
+    with LocalPool(jobs) as pool:
+        got = pool.options["env"].get(COMPILE_LOCK_ENV)
+        assert (got is not None) == locked
+        if locked:
+            assert got.startswith(pool.store)
+
+
+_COMPILE_ONCE = """
+import sys, time
+sys.path.insert(0, sys.argv[1])
+from freebody.reference_impl import compiled  # installs the lock named by the environment
+from numba.core.dispatcher import Dispatcher
+assert Dispatcher.compile.lock_path == sys.argv[2]
+import tinymap
+tinymap.twice(1.5)
+s = tinymap.twice.stats
+print(sum(s.cache_misses.values()), sum(s.cache_hits.values()))
+"""
+
+
+def test_two_processes_compile_a_function_once(tmp_path):
+    """Two processes started together with the lock and one empty numba cache: one compiles the
+    function, the other waits and loads it from the cache (1 miss and 1 hit between them; without
+    the lock both miss)."""
+    import os
+
+    from freebody.reference_impl.compiled_lock import COMPILE_LOCK_ENV
+
+    (tmp_path / "tinymap.py").write_text("from numba import njit\n\n@njit(cache=True)\n"
+                                         "def twice(x):\n    return 2.0 * x\n")
+    lock = str(tmp_path / "compile.lock")
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), COMPILE_LOCK_ENV: lock}
+    procs = [subprocess.Popen([sys.executable, "-c", _COMPILE_ONCE, str(tmp_path), lock], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(2)]
+    outs = [p.communicate(timeout=300) for p in procs]
+    assert all(p.returncode == 0 for p in procs), [o[1] for o in outs]
+    misses_hits = sorted(tuple(map(int, o[0].split())) for o in outs)
+    assert misses_hits == [(0, 1), (1, 0)]
+
+
+def test_timed_commands_cache_bytecode_as_users_have_it(monkeypatch):
+    """The bench times a command with its modules' bytecode cached (as an installation has it),
+    even when this environment says not to write bytecode (PYTHONDONTWRITEBYTECODE)."""
+    from freebody.tools.bench.core import run_child
+
+    monkeypatch.setenv("PYTHONDONTWRITEBYTECODE", "1")
+    child = run_child([sys.executable, "-c", "import sys; sys.exit(3 if sys.dont_write_bytecode else 0)"],
+                      {"FB_X": "1"})
+    assert child.returncode == 0

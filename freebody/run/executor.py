@@ -249,6 +249,10 @@ class LocalPool:
                         "env": {}, "plugin_import_timeout": timeout,
                         # plug-ins probed here: no worker probes them again (see worker._plugin_options)
                         "plugin_probes": base.plugin_probes(), "parent_python": sys.executable}
+        if self.store is not None:  # workers compile each numba function once between them
+            from ..reference_impl.compiled_lock import COMPILE_LOCK_ENV
+
+            self.options["env"][COMPILE_LOCK_ENV] = os.path.join(self.store, "numba-compile.lock")
         for entry in self.options["engines"].values():
             var = entry.cache_env
             if self.store is not None and var and var not in os.environ:
