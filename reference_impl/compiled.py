@@ -649,7 +649,7 @@ def _rkmk_stage(k, x, q, p, L, dt, c, d, K, M, I_inv, g, loads):
 
 
 @jit
-def _rkmk_sum(y, dt, a, b, c, e):
+def rkmk_sum(y, dt, a, b, c, e):
     """y + h (b_1 a + b_2 b + b_3 c + b_4 e) in RK4_B's order of operations."""
     b1, b2, b3, b4 = RK4_B
     return add(y, scale(dt, add(add(add(scale(b1, a), scale(b2, b)), scale(b3, c)), scale(b4, e))))
@@ -665,8 +665,8 @@ def rkmk4_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     d4, K4 = _rkmk_stage(k, x, q, p, L, dt, RK4_C[2], d3, K3, M, I_inv, g, loads)
     u = scale(dt, add(add(add(scale(RK4_B[0], K1), scale(RK4_B[1], K2)), scale(RK4_B[2], K3)),
                       scale(RK4_B[3], K4)))
-    return (_rkmk_sum(x, dt, d1[0], d2[0], d3[0], d4[0]), quat_normalize(quat_multiply(quat_from_rotvec(u), q)),
-            _rkmk_sum(p, dt, d1[2], d2[2], d3[2], d4[2]), _rkmk_sum(L, dt, d1[3], d2[3], d3[3], d4[3]))
+    return (rkmk_sum(x, dt, d1[0], d2[0], d3[0], d4[0]), quat_normalize(quat_multiply(quat_from_rotvec(u), q)),
+            rkmk_sum(p, dt, d1[2], d2[2], d3[2], d4[2]), rkmk_sum(L, dt, d1[3], d2[3], d3[3], d4[3]))
 
 
 @jit

@@ -27,7 +27,7 @@ import time
 import numpy as np
 from numba import njit
 
-from .compiled import (_rkmk_sum, add, cayley_quat, dexpinv_world, div, free_rotation, matrix_from_quat,
+from .compiled import (rkmk_sum, add, cayley_quat, dexpinv_world, div, free_rotation, matrix_from_quat,
                        matvec, midpoint_momentum, omega_world, quat_from_rotvec, quat_multiply, quat_normalize,
                        scale, transpose)
 from .lie_integrators import RK4_B, RK4_C
@@ -298,9 +298,9 @@ def floor_rkmk4(x, q, p, L, dt, steps, M, I_inv, g, out_x, out_q, out_v, out_w):
         d4, K4 = _rkmk_free_stage(x, q, p, L, dt, RK4_C[2], d3, K3, M, I_inv, g)
         u = scale(dt, add(add(add(scale(RK4_B[0], K1), scale(RK4_B[1], K2)), scale(RK4_B[2], K3)),
                           scale(RK4_B[3], K4)))
-        x, q, p, L = (_rkmk_sum(x, dt, d1[0], d2[0], d3[0], d4[0]),
+        x, q, p, L = (rkmk_sum(x, dt, d1[0], d2[0], d3[0], d4[0]),
                       quat_normalize(quat_multiply(quat_from_rotvec(u), q)),
-                      _rkmk_sum(p, dt, d1[2], d2[2], d3[2], d4[2]), _rkmk_sum(L, dt, d1[3], d2[3], d3[3], d4[3]))
+                      rkmk_sum(p, dt, d1[2], d2[2], d3[2], d4[2]), rkmk_sum(L, dt, d1[3], d2[3], d3[3], d4[3]))
         _put_quat_state(k + 1, x, q, p, L, M, I_inv, out_x, out_q, out_v, out_w)
 
 
