@@ -36,11 +36,15 @@ class Body:
 
     def __post_init__(self):
         object.__setattr__(self, "I_body", _frozen(self.I_body, (3, 3)))
+        object.__setattr__(self, "_I_body_inv", None)  # computed on first use (not a field)
 
     @property
     def I_body_inv(self) -> np.ndarray:
-        """I_body^-1, shape (3, 3), 1/(kg m^2), body frame."""
-        return np.linalg.inv(self.I_body)
+        """I_body^-1, shape (3, 3), 1/(kg m^2), body frame: inverted once per body (every reference
+        map run of identification asks for it), a fresh copy each call (callers may write to it)."""
+        if self._I_body_inv is None:
+            object.__setattr__(self, "_I_body_inv", np.linalg.inv(self.I_body))
+        return self._I_body_inv.copy()
 
 
 @dataclass(frozen=True)
