@@ -201,3 +201,12 @@ def test_timed_commands_cache_bytecode_as_users_have_it(monkeypatch):
     child = run_child([sys.executable, "-c", "import sys; sys.exit(3 if sys.dont_write_bytecode else 0)"],
                       {"FB_X": "1"})
     assert child.returncode == 0
+
+
+def test_a_worker_ends_without_teardown_but_flushes_its_streams():
+    """exit_now skips the interpreter's teardown (os._exit) with the exit code given and what was
+    printed still written."""
+    code = ("import sys\nfrom freebody.run.worker import exit_now\n"
+            "print('out', end=''); sys.stderr.write('err')\nexit_now(4)\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert (r.returncode, r.stdout, r.stderr) == (4, "out", "err")
