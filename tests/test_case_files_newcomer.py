@@ -255,7 +255,7 @@ def test_the_defaults_a_case_used_are_in_results_and_report(tmp_path):
     assert main(["run", str(case), "--engine", "reference", "--integrator", "rk4", "--out", str(tmp_path / "o"),
                  "--quiet"]) == 0
     doc = json.loads((tmp_path / "o" / "results.json").read_text())
-    assert doc["schema_version"] == SCHEMA_VERSION == 6
+    assert doc["schema_version"] == SCHEMA_VERSION == 7
     assert "world.gravity" in doc["cases"]["bare"]["defaults"]
     assert "initial.angular_velocity" in doc["cases"]["bare"]["defaults"]
     assert "no [world]: no gravity" in (tmp_path / "o" / "report.md").read_text()

@@ -145,7 +145,7 @@ def test_run_writes_results_json_and_trajectories(tmp_path, capsys):
     assert code == 0
     text = (out / "results.json").read_text()
     doc = json.loads(text)
-    assert doc["schema_version"] == SCHEMA_VERSION == 6
+    assert doc["schema_version"] == SCHEMA_VERSION == 7
     assert {"freebody_version", "created", "platform", "engines", "runs"} <= set(doc)
     assert list(doc) == sorted(doc)  # sorted keys
     assert len(doc["runs"]) == 2 * len(INTEGRATORS)  # two cases, every reference integrator

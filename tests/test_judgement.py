@@ -137,7 +137,7 @@ def hand_made() -> list[dict]:
 # --- tests ------------------------------------------------------------------------------------------
 
 def test_every_run_stores_the_facts_findings_derived_after_the_fact(doc):
-    assert doc["schema_version"] == SCHEMA_VERSION == 6
+    assert doc["schema_version"] == SCHEMA_VERSION == 7
     for r in doc["runs"]:
         assert r[jd.JUDGEMENT] == old_facts(r), (r["engine"], r["integrator"], r["case"], r["dt"])
     facts = [r[jd.JUDGEMENT] for r in doc["runs"]]

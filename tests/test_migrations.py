@@ -164,3 +164,20 @@ def test_each_schema_renders_a_report(v, tmp_path):
     # a document in memory (not read from a file) is migrated by the report too
     (md_path,) = write_reports(tmp_path / "mem", copy.deepcopy(raw(v)), html=False)
     assert md_path.read_text() == md.replace(str(out), str(tmp_path / "mem"))
+
+
+def test_schema_6_has_no_conventions_and_its_report_asks_the_adapters():
+    """Schema 7 added ``conventions`` (what the run's adapters state): a schema-6 document has none
+    and its report's conventions are the adapters' (imported), the same rows a schema-7 document
+    records."""
+    from freebody.report import data as rd
+    from freebody.run.suite import engine_conventions
+
+    before = raw(6)
+    assert before["schema_version"] == 6 and "conventions" not in before
+    doc = load_results(golden(6))
+    assert "conventions" not in doc and len(doc["runs"]) == 20
+    asked = rd.engine_conventions(doc)
+    recorded = rd.engine_conventions({**doc, "conventions": engine_conventions(list(doc["engines"]))})
+    assert asked == recorded and {e for e, _, _ in asked} == {"mujoco", "reference"}
+    assert ("mujoco", "load sampling") in {(e, k) for e, k, _ in asked}

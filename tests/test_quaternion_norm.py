@@ -115,7 +115,7 @@ def test_chunked_judging_gives_the_same_metric(scaled_run):
 
 def test_a_schema_5_document_reads_the_metric_as_unknown_and_no_finding(scaled_run):
     _, doc = scaled_run
-    assert doc["schema_version"] == SCHEMA_VERSION == 6
+    assert doc["schema_version"] == SCHEMA_VERSION == 7
     old = copy.deepcopy(doc)
     old["schema_version"] = 5
     for r in old["runs"]:

@@ -117,7 +117,7 @@ def run(args) -> int:
 
         defaults = {pb.name: defaulted_keys(n) for pb, n in zip(problems, names)}
         doc, reports = finish_run(out_dir, doc, {pb.name: pb for pb in problems}, report=not args.no_report,
-                                  baseline=args.baseline, defaults=defaults)
+                                  baseline=args.baseline, defaults=defaults, progress=not args.quiet)
     code = 1 if any(r["status"] == Status.FAILED for r in doc["runs"]) else 0
     if args.baseline is not None:  # the gate of freebody compare BASELINE OUT, in the terminal and the exit code
         from ..report.render import compare_with

@@ -114,6 +114,26 @@ def run_anchor(run: dict) -> str:
     return f"run-{_anchor_text(run['case'])}-{_anchor_text(label(run))}-dt{float(run['dt']):g}"
 
 
+# report.html's per-case Runs and engine-vs-engine tables go to this page next to it (the same
+# folder) when their markup exceeds TABLES_INLINE_MAX_BYTES (issue 29: report.html <= 4 MB for the
+# default suite, whose figures take 3.3 MB of it and whose tables 2.3 MB): each case section of
+# report.html then points to its tables there, and links to a run's row lead there.
+TABLES_PAGE = "report-tables.html"
+TABLES_INLINE_MAX_BYTES = 500_000
+
+
+def tables_anchor(case: str) -> str:
+    """The id of a case's tables in :data:`TABLES_PAGE`."""
+    return "tables-" + _anchor_text(case)
+
+
+def anchor_href(anchor: str, tables: str | None, home: str = "") -> str:
+    """The href of a report anchor: ``home`` + ``#anchor`` ("": a link in report.html itself,
+    "report.html": from report.md), but a run's row (``run-...``) is on the page ``tables`` when
+    the tables are apart (not None)."""
+    return f"{tables if tables is not None and anchor.startswith('run-') else home}#{anchor}"
+
+
 def conventions_anchor(engine: str) -> str:
     """The id of an engine's rows in the "Engine conventions and traps" section of report.html."""
     return "conventions-" + _anchor_text(engine)
@@ -463,13 +483,19 @@ CONVENTIONS_NOTE = ("Each engine's conventions and the traps its adapter handles
 
 
 def engine_conventions(doc: dict) -> list[tuple[str, str, str]]:
-    """(engine, convention, text) for every engine of the document whose adapter loads here (the
-    adapter's ``conventions``), else one row saying why not."""
+    """(engine, convention, text) for every engine of the document: as the run recorded them
+    (results.json ``conventions``, schema 7: no engine imported), else from its adapter when it
+    loads here (the adapter's ``conventions``), else one row saying why not."""
     from ..adapters.base import base_engine, is_available, is_plugin, load_adapter, split_engine_name
     from ..adapters.capture import capture_output
 
     out = []
+    recorded = doc.get("conventions") if isinstance(doc.get("conventions"), dict) else {}
     for engine, _, _ in engine_versions(doc):
+        rows = recorded.get(engine)
+        if isinstance(rows, list) and rows and all(isinstance(r, list) and len(r) == 2 for r in rows):
+            out += [(engine, str(k), str(v)) for k, v in rows]
+            continue
         if is_plugin(engine):  # a third party's module: the report imports none (its import may hang)
             out.append((engine, "-", f"a plug-in, not imported by the report: see freebody conventions "
                                      f"--engine {engine}"))
@@ -477,10 +503,10 @@ def engine_conventions(doc: dict) -> list[tuple[str, str, str]]:
         try:
             if split_engine_name(engine)[1] or not is_available(engine):
                 raise LookupError
+            from ..run.suite import convention_rows
+
             with capture_output():
-                cls = load_adapter(base_engine(engine))
-            rows = list(cls.conventions.items())
-            rows.append(("load sampling", cls.load_sampling_text()))  # where in a step the loads act
+                rows = convention_rows(load_adapter(base_engine(engine)))  # load sampling last
         except Exception:
             out.append((engine, "-", "not installed here (or run in an isolated environment): see "
                                      f"freebody conventions --engine {engine}"))

@@ -117,25 +117,27 @@ def anchor(case: str) -> str:
 def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict, notes: dict,
                 out_dir: Path | None = None, source: str = "results.json",
                 pairs: dict[str, list] | None = None, found: list[fd.Finding] | None = None,
-                comparison=None) -> str:
+                comparison=None, tables: str | None = None) -> str:
     """The whole report.html.  ``figures``: 'heatmap', 'convergence', 'speed' and (case, dt) -> PNG
     bytes or None; ``notes``: case -> lines about runs that could not be drawn; ``found``: the
     findings (computed here without trajectories when None); ``comparison``: a comparison with a
-    baseline (:func:`freebody.report.render.compare_with`), or None."""
+    baseline (:func:`freebody.report.render.compare_with`), or None; ``tables``: None (the per-case
+    Runs and engine-vs-engine tables in the page), or the page holding them
+    (:data:`freebody.report.data.TABLES_PAGE`, :func:`render_tables_html`), pointed to instead."""
     runs = doc.get("runs") or []
     cases = rd.by_case(runs)
     if found is None:
         found = fd.find(runs, convergence=convergence, cases=doc.get("cases"))
     p = _head_html(doc, runs, cases, source, comparison)
-    p += _findings_html(found, runs, comparison)
+    p += _findings_html(found, runs, comparison, tables)
     if comparison is not None:
         p += _compare_html(comparison)
-    p += _verdict_html(runs, found)
+    p += _verdict_html(runs, found, tables)
     p += _overview_html(doc, runs, figures, convergence)
     for case, case_runs in cases.items():
         case_pairs = (pairs or {}).get(case)
         p += _case_html(case, case_runs, physics.get(case), convergence, case_pairs, figures,
-                        notes.get(case, []), out_dir)
+                        notes.get(case, []), out_dir, tables)
     p.append("</body></html>\n")
     return "\n".join(p)
 
@@ -144,11 +146,7 @@ def _head_html(doc: dict, runs: list[dict], cases: dict, source: str, comparison
     """The page's head, title, provenance line, incomplete warning and navigation (every section
     with an id, the comparison with a baseline and the engine versions when the page has them)."""
     counts = rd.status_counts(runs)
-    p = []
-    p.append("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
-             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
-             f"<title>freebody report</title><style>{CSS}</style><script>{SCRIPT}</script></head><body>")
-    p.append("<h1>freebody report</h1>")
+    p = [_page_head("freebody report"), "<h1>freebody report</h1>"]
     p.append(f'<p class="meta">results <code>{escape(source)}</code> (schema {escape(str(doc.get("schema_version")))}), '
              f'freebody {escape(str(doc.get("freebody_version", "?")))}, created {escape(str(doc.get("created", "?")))}'
              f'<br>platform: {escape(str(doc.get("platform", "?")))}<br>runs: {len(runs)} ('
@@ -165,12 +163,18 @@ def _head_html(doc: dict, runs: list[dict], cases: dict, source: str, comparison
     return p
 
 
-def _links(links: list[tuple[str, str]]) -> str:
-    return ('<span class="links">' + "".join(f'<a href="#{escape(a)}">{escape(t)}</a>' for t, a in links)
-            + "</span>") if links else ""
+def _page_head(title: str) -> str:
+    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
+            f"<title>{escape(title)}</title><style>{CSS}</style><script>{SCRIPT}</script></head><body>")
 
 
-def _findings_html(found: list[fd.Finding], runs: list[dict], comparison) -> list[str]:
+def _links(links: list[tuple[str, str]], tables: str | None = None) -> str:
+    return ('<span class="links">' + "".join(f'<a href="{escape(rd.anchor_href(a, tables))}">{escape(t)}</a>'
+                                             for t, a in links) + "</span>") if links else ""
+
+
+def _findings_html(found: list[fd.Finding], runs: list[dict], comparison, tables: str | None = None) -> list[str]:
     p = ['<h2 id="findings">Findings</h2>']
     p.append(f'<p class="note">{escape(fd.counts_text(found))}. {escape(fd.FINDINGS_NOTE)}</p>')
     items = []
@@ -185,9 +189,9 @@ def _findings_html(found: list[fd.Finding], runs: list[dict], comparison) -> lis
                 f'{escape(f0.title)}: <b>{escape(line.label)}</b>')
         if len(parts) == 1:
             text, links = parts[0]
-            items.append(f"<li>{head} {escape(text)} {_links(links)}</li>")
+            items.append(f"<li>{head} {escape(text)} {_links(links, tables)}</li>")
         else:
-            sub = "".join(f"<li>{escape(text)} {_links(links)}</li>" for text, links in parts)
+            sub = "".join(f"<li>{escape(text)} {_links(links, tables)}</li>" for text, links in parts)
             items.append(f"<li>{head} on {len(parts)} runs (from {escape(f0.source)}): "
                          f"<details><summary>the runs</summary><ul>{sub}</ul></details></li>")
     if items:
@@ -217,15 +221,15 @@ def _compare_html(comparison) -> list[str]:
     return p
 
 
-def _run_link(run: dict, text: str) -> str:
-    return f'<a href="#{escape(rd.run_anchor(run))}">{escape(text)}</a>'
+def _run_link(run: dict, text: str, tables: str | None = None) -> str:
+    return f'<a href="{escape(rd.anchor_href(rd.run_anchor(run), tables))}">{escape(text)}</a>'
 
 
 def _runs_text(n: int) -> str:
     return f"{n} engine run{'' if n == 1 else 's'}"
 
 
-def _verdict_html(runs: list[dict], found: list[fd.Finding]) -> list[str]:
+def _verdict_html(runs: list[dict], found: list[fd.Finding], tables: str | None = None) -> list[str]:
     """Per case, the scheme groups (folded; open where the case has a finding) and the
     differences between groups, attributed to the schemes."""
     p = ['<h2 id="verdict">Verdict per case</h2>']
@@ -240,7 +244,7 @@ def _verdict_html(runs: list[dict], found: list[fd.Finding]) -> list[str]:
         for g in groups:
             name = Html(f'<span title="{escape(g.tie_text)}">{escape(g.name)}</span>')
             for dt in g.dts():
-                members = Html("; ".join(f"{_run_link(m.run, m.label)} {escape(fd.member_text(m))}"
+                members = Html("; ".join(f"{_run_link(m.run, m.label, tables)} {escape(fd.member_text(m))}"
                                          for m in g.at(dt)))
                 rows.append((name, f"{dt:g}", members, fd.group_error(g, dt)))
         html = table(md.VERDICT_COLUMNS, rows)
@@ -320,19 +324,21 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
 
 
 def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], case_pairs: list | None,
-               figures: dict, case_notes: list[str], out_dir: Path | None) -> list[str]:
+               figures: dict, case_notes: list[str], out_dir: Path | None, tables: str | None = None) -> list[str]:
     """One case's section: description, runs (a row id per run), what was not ok, observed
     orders, engine-vs-engine differences at the end (``case_pairs``, computed here when None) and
-    the per-dt figures (an id per figure).  ``ph``: the case's rd.CasePhysics, or None."""
+    the per-dt figures (an id per figure).  ``ph``: the case's rd.CasePhysics, or None; ``tables``:
+    the page holding the case's Runs and engine-vs-engine tables (pointed to), or None (here)."""
     p = []
     p.append(f'<h2 id="{anchor(case)}">Case <code>{escape(case)}</code></h2>')
     if ph is not None:
         first, *rest = [line for line in ph.lines() if line]
         p.append(f"<p>{escape(first)}</p>" + "".join(f'<p class="note">{escape(line)}</p>' for line in rest))
-    order = {lab: i for i, lab in enumerate(rd.labels(case_runs))}
-    ordered = sorted(case_runs, key=lambda r: (order[rd.label(r)], -float(r["dt"])))
-    p.append("<h3>Runs</h3>" + table(*md.run_table(case_runs), status_col=2,
-                                     row_ids=[rd.run_anchor(r) for r in ordered]))
+    there = f'<a href="{escape(tables or "")}#{escape(rd.tables_anchor(case))}">{escape(tables or "")}</a>'
+    p.append("<h3>Runs</h3>" + (runs_table_html(case_runs) if tables is None else
+                                f'<p class="note">{len(case_runs)} runs: the table is in {there} (apart: '
+                                "with it, this page would exceed its size budget), each run's metrics in "
+                                f"results.json (<code>runs[]</code>, case <code>{escape(case)}</code>).</p>"))
     bad = [r for r in case_runs if r.get("status") != Status.OK]
     if bad:
         items = dict.fromkeys(f"{rd.label(r)} dt = {float(r['dt']):g} s: {r.get('status')}: "
@@ -345,14 +351,11 @@ def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], ca
     if case_pairs is None:
         case_pairs = rd.pairwise(case_runs, ph, out_dir)
     p.append("<h3>Engines at the end</h3>")
-    if case_pairs:
-        p.append(f'<p class="note">{escape(md.PAIRS_NOTE)}</p>')
-        if ph is None:
-            p.append('<p class="note">L and E need the case\'s mass and inertia, not in this results.json '
-                     "(pass <code>--case PATH</code> to <code>freebody report</code>).</p>")
-        p.append(table(md.PAIR_COLUMNS, md.pair_rows(case_pairs), fold="engine-vs-engine differences"))
+    if case_pairs and tables is not None:
+        p.append(f'<p class="note">{len(case_pairs)} pairs of runs of different engines at the same time '
+                 f"step: their final-state differences are tabled in {there}.</p>")
     else:
-        p.append('<p class="note">No two engines both finished a run of this case at the same time step.</p>')
+        p += pairs_html(case_pairs, ph)
     p.append("<h3>Errors and angular velocity against time</h3>"
              '<p class="note">Colour: the engine (black: the reference engine); line style and marker: its '
              "integrator; the legend at the right.</p>")
@@ -361,3 +364,53 @@ def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], ca
     for line in case_notes:
         p.append(f'<p class="note">{escape(line)}</p>')
     return p
+
+
+def runs_table_html(case_runs: list[dict]) -> str:
+    """A case's Runs table, each row's id its run's anchor (:func:`freebody.report.data.run_anchor`)."""
+    order = {lab: i for i, lab in enumerate(rd.labels(case_runs))}
+    ordered = sorted(case_runs, key=lambda r: (order[rd.label(r)], -float(r["dt"])))
+    return table(*md.run_table(case_runs), status_col=2, row_ids=[rd.run_anchor(r) for r in ordered])
+
+
+def pairs_html(case_pairs: list, ph) -> list[str]:
+    """A case's engine-vs-engine differences at the end (folded when long), or why there are none."""
+    if not case_pairs:
+        return ['<p class="note">No two engines both finished a run of this case at the same time step.</p>']
+    p = [f'<p class="note">{escape(md.PAIRS_NOTE)}</p>']
+    if ph is None:
+        p.append('<p class="note">L and E need the case\'s mass and inertia, not in this results.json '
+                 "(pass <code>--case PATH</code> to <code>freebody report</code>).</p>")
+    return p + [table(md.PAIR_COLUMNS, md.pair_rows(case_pairs), fold="engine-vs-engine differences")]
+
+
+def tables_apart(runs: list[dict], pairs: dict[str, list], physics: dict) -> bool:
+    """Whether the per-case Runs and engine-vs-engine tables go to their own page
+    (:data:`freebody.report.data.TABLES_PAGE`): their markup exceeds TABLES_INLINE_MAX_BYTES."""
+    size = 0
+    for case, case_runs in rd.by_case(runs).items():
+        size += len(runs_table_html(case_runs)) + sum(map(len, pairs_html(pairs.get(case), physics.get(case))))
+        if size > rd.TABLES_INLINE_MAX_BYTES:
+            return True
+    return False
+
+
+def render_tables_html(doc: dict, physics: dict, pairs: dict[str, list], source: str = "results.json") -> str:
+    """:data:`freebody.report.data.TABLES_PAGE`: every case's Runs table (the rows report.html's
+    links lead to) and engine-vs-engine differences, one section per case (``#tables-CASE``)."""
+    runs = doc.get("runs") or []
+    cases = rd.by_case(runs)
+    p = [_page_head("freebody report: tables"), "<h1>freebody report: the per-case tables</h1>",
+         f'<p class="meta">results <code>{escape(source)}</code>, created {escape(str(doc.get("created", "?")))}: '
+         'the tables of <a href="report.html">report.html</a> (its findings, verdict, overview and '
+         "figures) that would make it exceed its size budget.</p>",
+         "<nav><b>Cases:</b> " + " ".join(f'<a href="#{rd.tables_anchor(c)}">{escape(c)}</a>' for c in cases)
+         + "</nav>"]
+    for case, case_runs in cases.items():
+        p.append(f'<h2 id="{rd.tables_anchor(case)}">Case <code>{escape(case)}</code> '
+                 f'<a class="links" href="report.html#{anchor(case)}">(its section in report.html)</a></h2>')
+        p.append("<h3>Runs</h3>" + runs_table_html(case_runs))
+        p.append("<h3>Engines at the end</h3>")
+        p += pairs_html(pairs.get(case), physics.get(case))
+    p.append("</body></html>\n")
+    return "\n".join(p)

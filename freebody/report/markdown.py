@@ -178,7 +178,7 @@ def finding_line_parts(line: fd.FindingLine, keyed: dict) -> tuple[str, list[tup
     return lead, items
 
 
-def findings_lines(found: list[fd.Finding], runs: list[dict], comparison=None) -> list[str]:
+def findings_lines(found: list[fd.Finding], runs: list[dict], comparison=None, tables: str | None = None) -> list[str]:
     out = ["## Findings", "", fd.FINDINGS_NOTE, ""]
     if comparison is not None:
         out += [f"- **baseline** · compare verdict · {verdict_line(comparison)} (see Compare with baseline)"]
@@ -191,15 +191,17 @@ def findings_lines(found: list[fd.Finding], runs: list[dict], comparison=None) -
         f0 = line.items[0]
         if len(items) == 1:
             text, links = items[0]
-            out.append(f"- **{lead}**: {text}" + _md_links(links))
+            out.append(f"- **{lead}**: {text}" + _md_links(links, tables))
         else:
             out.append(f"- **{lead}** on {len(items)} runs (from {f0.source}): "
-                       + "; ".join(text + _md_links(links) for text, links in items))
+                       + "; ".join(text + _md_links(links, tables) for text, links in items))
     return out + [""]
 
 
-def _md_links(links: list[tuple[str, str]]) -> str:
-    return (" [" + ", ".join(f"[{t}](report.html#{a})" for t, a in links) + "]") if links else ""
+def _md_links(links: list[tuple[str, str]], tables: str | None = None) -> str:
+    """The links of a finding (``tables``: the page of the runs' rows when not report.html)."""
+    return (" [" + ", ".join(f"[{t}]({rd.anchor_href(a, tables, 'report.html')})" for t, a in links)
+            + "]") if links else ""
 
 
 def verdict_line(comparison) -> str:
@@ -335,13 +337,13 @@ def overview_lines(doc: dict) -> list[str]:
 
 
 def front_matter(doc: dict, source: str, found: list[fd.Finding] | None = None, comparison=None,
-                 compact: bool = False) -> list[str]:
+                 compact: bool = False, tables: str | None = None) -> list[str]:
     """The report's first part: header, findings, comparison with a baseline, the verdict per case
     (with ``compact``: a pointer to report.html's tables), then the overview tables."""
     runs = doc.get("runs") or []
     if found is None:
         found = fd.find(runs, convergence=doc.get("convergence"), cases=doc.get("cases"))
-    out = header_lines(doc, source) + findings_lines(found, runs, comparison)
+    out = header_lines(doc, source) + findings_lines(found, runs, comparison, tables)
     if comparison is not None:
         out += compare_lines(comparison)
     return out + verdict_lines(runs, compact) + overview_lines(doc)
@@ -349,17 +351,20 @@ def front_matter(doc: dict, source: str, found: list[fd.Finding] | None = None, 
 
 def case_section(case: str, runs: list[dict], convergence: list[dict],
                  physics: rd.CasePhysics | None, out_dir: Path | None,
-                 pairs: list[rd.Pair] | None = None, compact: bool = False) -> list[str]:
+                 pairs: list[rd.Pair] | None = None, compact: bool = False,
+                 tables: str | None = None) -> list[str]:
     """One case's section: its description, runs, what was not ok, observed orders and the
     engines' differences at the end.  With ``compact`` (:data:`MD_BUDGET_BYTES`) the runs and the
-    differences are pointers to report.html's tables (and results.json's runs)."""
+    differences are pointers to report.html's tables (and results.json's runs), or to the page
+    ``tables`` (:data:`freebody.report.data.TABLES_PAGE`) when report.html keeps them apart."""
     out = [f"## Case `{case}`", ""]
+    where = (f"[{tables}]({tables}#{rd.tables_anchor(case)})" if tables is not None
+             else f"[report.html](report.html#{rd.case_anchor(case)})")
     if physics is not None:
         out += [*physics.lines(), ""]
     if compact:
-        out += ["### Runs", "", f"{len(runs)} runs: the table is in [report.html](report.html#"
-                f"{rd.case_anchor(case)}) and each run's metrics in results.json (`runs[]`, case "
-                f"`{case}`).", ""]
+        out += ["### Runs", "", f"{len(runs)} runs: the table is in {where} and each run's metrics in "
+                f"results.json (`runs[]`, case `{case}`).", ""]
     else:
         out += ["### Runs", "", md_table(*run_table(runs)), ""]
     bad = not_ok_lines(runs)
@@ -376,7 +381,7 @@ def case_section(case: str, runs: list[dict], convergence: list[dict],
         pairs = rd.pairwise(runs, physics, out_dir)
     if pairs and compact:
         out += [f"{len(pairs)} pairs of runs of different engines at the same time step: their "
-                f"final-state differences are tabled in [report.html](report.html#{rd.case_anchor(case)}).", ""]
+                f"final-state differences are tabled in {where}.", ""]
     elif pairs:
         if physics is None:
             out += ["L and E differences need the case's mass and inertia, which this results.json "
@@ -402,11 +407,12 @@ def pair_rows(pairs: list[rd.Pair]) -> list[tuple]:
 def render_markdown(doc: dict, convergence: list[dict], physics: dict[str, rd.CasePhysics | None],
                     out_dir: Path | None = None, source: str = "results.json",
                     pairs: dict[str, list[rd.Pair]] | None = None, found: list[fd.Finding] | None = None,
-                    comparison=None) -> str:
+                    comparison=None, tables: str | None = None) -> str:
     """The whole report.md text.  ``physics``: case name -> CasePhysics (or None); ``pairs``: case
     name -> :func:`report_data.pairwise` (computed here when not given); ``found``: the findings
     (:func:`freebody.report.findings.find`, computed here without trajectories when not given);
-    ``comparison``: a :class:`freebody.results.compare.Comparison` with a baseline, or None."""
+    ``comparison``: a :class:`freebody.results.compare.Comparison` with a baseline, or None;
+    ``tables``: the page of report.html's per-case tables when apart (data.TABLES_PAGE), or None."""
     runs = doc.get("runs") or []
     if found is None:
         found = fd.find(runs, convergence=doc.get("convergence"), cases=doc.get("cases"))
@@ -415,10 +421,11 @@ def render_markdown(doc: dict, convergence: list[dict], physics: dict[str, rd.Ca
              for c, rs in rd.by_case(runs).items()}
     text = ""
     for compact in (False, True):  # the whole report, or within its budget (MD_BUDGET_BYTES)
-        lines = front_matter(doc, source, found, comparison, compact) + observed_order_lines(
+        lines = front_matter(doc, source, found, comparison, compact, tables) + observed_order_lines(
             convergence, runs, doc.get("cases"))
         for case, case_runs in rd.by_case(runs).items():
-            lines += case_section(case, case_runs, convergence, physics.get(case), out_dir, pairs[case], compact)
+            lines += case_section(case, case_runs, convergence, physics.get(case), out_dir, pairs[case], compact,
+                                  tables)
         text = "\n".join(lines).rstrip() + "\n"
         if len(text.encode("utf-8")) <= MD_BUDGET_BYTES:
             break

@@ -144,6 +144,9 @@ def _cached_text_canvas():
 # edges; measured on the default suite's 38 figures: 6.0 MB -> 2.0 MB of PNG (report.html 8.5 MB ->
 # 3.2 MB), 0.3 % of the pixels off by more than 16 of 255 in a channel, none by more than 48.
 PNG_COLOURS = 256
+# zlib level of the PNGs: 9 against the default 6 is 7 % fewer bytes, lossless (the default suite's
+# 50 figures: 2.62 -> 2.43 MB, report.html -0.26 MB), for 3 s CPU more in all (60 ms a figure).
+PNG_COMPRESS_LEVEL = 9
 
 
 class ClippedText(AssertionError):
@@ -281,7 +284,8 @@ def png_bytes(fig) -> bytes:
     else:
         image = Image.fromarray(rgba, "RGBA")
     buf = io.BytesIO()
-    image.save(buf, format="png", dpi=(DPI, DPI))  # the pixel density savefig records
+    # zlib's level 9 (PNG_COMPRESS_LEVEL): the same pixels, 7 % fewer bytes than its default
+    image.save(buf, format="png", dpi=(DPI, DPI), compress_level=PNG_COMPRESS_LEVEL)  # dpi: as savefig records
     return buf.getvalue()
 
 

@@ -62,7 +62,8 @@ def compare_with(baseline, doc: dict, current: str = "this run"):
 
 def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None = None,
                   html: bool = True, baseline=None, progress: bool = False) -> list[Path]:
-    """Write ``out_dir/report.md`` and (unless ``html`` is False) ``out_dir/report.html``.
+    """Write ``out_dir/report.md`` and (unless ``html`` is False) ``out_dir/report.html``, with
+    ``out_dir/report-tables.html`` (rd.TABLES_PAGE) when its per-case tables are too long for it.
 
     doc : the results document (default: ``out_dir/results.json``).
     problems : case name -> Problem, for cases that results.json does not describe.
@@ -94,17 +95,21 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
         if figures is not None and figures.parallel:
             figures.start()  # the workers draw while report.md is written
         pairs, found, comparison = _tables_data(doc, runs, conv, physics, out_dir, baseline)
+        tables = _tables_page(out_dir, runs, pairs, physics) if html else None
         md_path = out_dir / "report.md"
         write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs, found=found,
-                                                   comparison=comparison))
+                                                   comparison=comparison, tables=tables))
         written = [md_path]
         if figures is not None:
-            from .html import render_html
+            from .html import render_html, render_tables_html
 
+            if tables is not None:
+                write_text_atomic(out_dir / tables, render_tables_html(doc, physics, pairs))
+                written.append(out_dir / tables)
             figs, notes = figures.result()
             html_path = out_dir / "report.html"
             write_text_atomic(html_path, render_html(doc, conv, physics, figs, notes, out_dir, pairs=pairs,
-                                                     found=found, comparison=comparison))
+                                                     found=found, comparison=comparison, tables=tables))
             written.append(html_path)
     finally:
         if figures is not None:
@@ -121,6 +126,19 @@ def _tables_data(doc: dict, runs: list[dict], conv: list[dict], physics: dict, o
     found = fd.find(runs, rd.trajectory_reader(out_dir), conv, doc.get("cases"))
     comparison = compare_with(baseline, doc, str(out_dir)) if baseline is not None else None
     return pairs, found, comparison
+
+
+def _tables_page(out_dir: Path, runs: list[dict], pairs: dict, physics: dict) -> str | None:
+    """rd.TABLES_PAGE when report.html's per-case tables go there (:func:`freebody.report.html.
+    tables_apart`), else None, with a stale copy of that page from an earlier report removed."""
+    from .html import tables_apart
+
+    if tables_apart(runs, pairs, physics):
+        return rd.TABLES_PAGE
+    stale = out_dir / rd.TABLES_PAGE
+    if stale.is_file() and not stale.is_symlink():
+        stale.unlink()
+    return None
 
 
 class _FiguresStopped(Exception):

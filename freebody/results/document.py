@@ -1,9 +1,10 @@
-"""results.json (schema version 6) and the per-run trajectory files, written atomically.
+"""results.json (schema version 7) and the per-run trajectory files, written atomically.
 
 results.json::
 
-    {"schema_version": 6, "freebody_version", "created", "platform", "engines": {name: version},
-     "incomplete": false, "runs": [RunResult.to_json(), ...], ...}
+    {"schema_version": 7, "freebody_version", "created", "platform", "engines": {name: version},
+     "conventions": {name: [[convention, text], ...]}, "incomplete": false,
+     "runs": [RunResult.to_json(), ...], ...}
 
 Schema 2 added each run's ``experiment`` (what was simulated: :mod:`freebody.run.experiment`)
 and, in ``cases``, the time steps and durations that ran (``ran``).  Schema 1 documents (and
@@ -34,6 +35,11 @@ Schema 6 (issue 28) added, in each judged run's ``metrics``, ``quaternion_norm_e
 (max_k |1 - |q_k|| of the quaternions as the engine handed them out) and, in its ``judgement``,
 ``non_unit_quaternion`` (that beyond round-off: a finding).  An older run's metric is null
 (unknown) and its ``non_unit_quaternion`` false.
+
+Schema 7 (issue 29: the report in its budget) added ``conventions``: per engine whose adapter the
+run loaded, its conventions as ``freebody conventions`` states them (the adapter's ``conventions``,
+then its load sampling), so that a report reads them without importing the engine (MJX's adapter
+imports JAX).  An older document has none: its report imports the adapters, as before.
 
 Every document read is migrated on load (:func:`load_results` -> :func:`migrate`, one
 ``_update_to_N`` per schema version, asv's ``update_to_N``), so that readers see the newest shape
@@ -76,8 +82,8 @@ from ..reference_impl.conventions import Trajectory
 from ..reference_impl.integrators import INTEGRATOR_ALIASES
 from .io import FileRefused, open_regular_file, read_json, write_npz_atomic
 
-SCHEMA_VERSION = 6
-READABLE_SCHEMA_VERSIONS = (1, 2, 3, 4, 5, 6)  # results.json / baseline versions this freebody reads
+SCHEMA_VERSION = 7
+READABLE_SCHEMA_VERSIONS = (1, 2, 3, 4, 5, 6, 7)  # results.json / baseline versions this freebody reads
 _FIELDS = ("t", "position", "quaternion_wxyz", "linear_velocity", "angular_velocity")
 
 
@@ -99,8 +105,10 @@ def document_header(schema_version: int, engines: dict[str, str | None] | None =
 
 
 def results_document(runs: list[dict], engines: dict[str, str | None], incomplete: bool = False,
-                     extra: dict | None = None) -> dict:
-    doc = document_header(SCHEMA_VERSION, engines, incomplete=incomplete, runs=runs)
+                     extra: dict | None = None, conventions: dict[str, list] | None = None) -> dict:
+    """results.json's document; ``conventions``: engine -> [[convention, text], ...] (schema 7)."""
+    fields = {"conventions": conventions} if conventions is not None else {}
+    doc = document_header(SCHEMA_VERSION, engines, **fields, incomplete=incomplete, runs=runs)
     doc.update(extra or {})
     return doc
 
@@ -542,7 +550,8 @@ def check_results(doc, where: str) -> dict:
 #
 # - the document: ``schema_version`` (as written: it says what was written), ``engines`` ({} when
 #   absent), ``incomplete`` (False when absent), ``runs``; optional, also in the newest schema:
-#   ``cases`` and ``convergence`` (absent from an interrupted run's results), ``baseline``.
+#   ``cases`` and ``convergence`` (absent from an interrupted run's results), ``baseline``,
+#   ``conventions`` (schema 7; absent before).
 # - every run: every key of :class:`freebody.run.records.RunResult` (:data:`RUN_DEFAULTS`, a key
 #   absent from the file gets its value there: None, {} or []; ``precision`` null or absent is
 #   "float64"; ``metrics``, ``engine_settings`` null are {}, ``engine_output`` null is []).  What
@@ -643,8 +652,15 @@ def _update_to_6(doc: dict) -> dict:
     return doc
 
 
+def _update_to_7(doc: dict) -> dict:
+    """Schema 7 added ``conventions`` (engine -> [[convention, text], ...]), optional: an older
+    document has none, and its readers (the report) ask the adapters instead."""
+    return doc
+
+
 # One step per schema version: step N brings a document of version N - 1 to N.
-_MIGRATIONS = {2: _update_to_2, 3: _update_to_3, 4: _update_to_4, 5: _update_to_5, 6: _update_to_6}
+_MIGRATIONS = {2: _update_to_2, 3: _update_to_3, 4: _update_to_4, 5: _update_to_5, 6: _update_to_6,
+               7: _update_to_7}
 
 # Every run key (RunResult.to_json) and its value when a file leaves it out (never for the five
 # REQUIRED_RUN_KEYS, checked on load).

@@ -38,6 +38,27 @@ def engine_versions(engines: list[str]) -> dict[str, str | None]:
     return out
 
 
+def convention_rows(cls) -> list[list[str]]:
+    """An adapter class's conventions as ``freebody conventions`` and the reports state them:
+    [[convention, text], ...], its load sampling last (results.json ``conventions``, schema 7)."""
+    return [[k, str(v)] for k, v in cls.conventions.items()] + [["load sampling", cls.load_sampling_text()]]
+
+
+def engine_conventions(engines: list[str]) -> dict[str, list[list[str]]]:
+    """engine -> :func:`convention_rows` for each engine whose adapter loads in this process (an
+    isolated engine's, or a missing one's, are left to the report: it says why it has none)."""
+    from ..envs import engines as engine_envs
+
+    out = {}
+    for e in engines:
+        try:
+            if not engine_envs.isolated(e):
+                out[e] = convention_rows(load_adapter(e))
+        except Exception:  # missing or broken: engine_versions records None
+            pass
+    return out
+
+
 def default_jobs() -> int:
     """The default number of worker processes: the number of cores."""
     return os.cpu_count() or 1
@@ -90,7 +111,7 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
             stack.enter_context(output_lock(out_path))  # before any work: a second writer refuses at once
         versions = engine_versions(engines)
         folder = OutputFolder(out_path) if out_path is not None else None
-        finished = _Finished(folder, versions, bar, on_result)
+        finished = _Finished(folder, versions, bar, on_result, engine_conventions(engines))
         try:
             if simulated is None and local and timeout is None:  # a time limit needs a run alone
                 from .batching import step_together
@@ -172,8 +193,9 @@ class _Finished:
     """
 
     def __init__(self, folder: OutputFolder | None, versions: dict[str, str | None], bar: ProgressDisplay,
-                 on_result: Callable[[RunOutput], None] | None):
+                 on_result: Callable[[RunOutput], None] | None, conventions: dict[str, list] | None = None):
         self.folder, self.versions, self.bar, self.on_result = folder, versions, bar, on_result
+        self.conventions = conventions  # results.json ``conventions`` (engine_conventions)
         self.runs: dict[int, dict] = {}
         self.outputs: dict[int, RunOutput] = {}
 
@@ -201,7 +223,8 @@ class _Finished:
 
     def write(self, incomplete: bool) -> dict:
         """The results document of the runs so far; with an output folder, published as results.json."""
-        doc = results_document([self.runs[i] for i in sorted(self.runs)], self.versions, incomplete=incomplete)
+        doc = results_document([self.runs[i] for i in sorted(self.runs)], self.versions, incomplete=incomplete,
+                               conventions=self.conventions)
         if self.folder is not None:
             self.folder.publish(doc)
         return doc
