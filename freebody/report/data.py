@@ -476,10 +476,11 @@ def engine_versions(doc: dict) -> list[tuple[str, str, int]]:
             for e, v in versions.items()]
 
 
-CONVENTIONS_NOTE = ("Each engine's conventions and the traps its adapter handles, as this freebody's "
-                    "adapters state them (`freebody conventions --engine NAME` shows them with their "
-                    "live self-checks); an engine that is not installed here, or that ran in an "
-                    "isolated environment, is listed without them.")
+CONVENTIONS_NOTE = ("Each engine's conventions and the traps its adapter handles, as the run's adapters "
+                    "stated them (results.json `conventions`; for an older results.json, as this "
+                    "freebody's adapters state them: `freebody conventions --engine NAME` shows them "
+                    "with their live self-checks); an engine that is not installed here, or that ran "
+                    "in an isolated environment, is listed without them.")
 
 
 def engine_conventions(doc: dict) -> list[tuple[str, str, str]]:
