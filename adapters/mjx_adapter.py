@@ -289,11 +289,12 @@ def _chunk(m, d, rows, n, mask=None):
 # jax 0.10: the unbatched program and widths 1, 3, 4, 7 give other last bits than widths 2, 8,
 # 16), but a lane's numbers do not depend on its position nor on the other lanes' contents at a
 # fixed width; so with one fixed width a run is bit for bit the same alone or stepped with others.
-# LANES = 1 keeps every MJX number of freebody 0.2.0 before issue 29 bit for bit; LANES = 2 steps
-# the default suite's 282 MJX runs in 43 s CPU instead of about 60 (55 s at 4, 61 s at 8: its runs
-# of 100 000 steps set the number of calls) but moves every MJX trajectory by round-off, which
-# changed 14 of those runs' verdicts (10 float32 scheme identifications at the margin, 4 blow-up
-# times of high_spin_dt_10ms by 0.01-0.06 s).
+# LANES = 1 keeps every MJX number of freebody 0.2.0 before issue 29 bit for bit, and is as fast
+# as any width on the default suite: its 282 MJX runs step together in 43.3 s CPU at width 1,
+# 43.1 s at 2, 55 s at 4, 61 s at 8 (each (integrator, precision) has one run of 100 000 steps,
+# which sets the number of calls); a width > 1 pays off only for many runs of similar length (a
+# sweep), and moves every MJX trajectory by round-off (at width 2: 14 of those 282 runs' verdicts
+# changed, 10 float32 scheme identifications at the margin and 4 blow-up times).
 LANES = 1
 _lanes_jit = jax.jit(jax.vmap(_chunk, in_axes=(0, 0, 0, 0, 0)))
 _chunk_jit = jax.jit(_chunk)  # LANES = 1: the run alone, unbatched
