@@ -98,3 +98,20 @@ def test_a_run_records_its_conventions_and_the_report_imports_no_engine(tiny, tm
             "print(sorted(m for m in ('jax', 'mujoco', 'pybullet') if m in sys.modules))")
     got = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert got.stdout.strip() == "[]"
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_freebody_run_shows_the_reports_progress_unless_quiet(tmp_path, monkeypatch, quiet):
+    import freebody.report.render as render
+
+    seen = []
+    real = render.finish_run
+
+    def spy(*args, **kw):
+        seen.append(kw.get("progress"))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(render, "finish_run", spy)
+    assert main(["run", "quiz", "--engine", "reference", "--integrator", "rk4", "--duration", "0.02",
+                 "--dt", "0.01", "--out", str(tmp_path / "out"), *(["--quiet"] if quiet else [])]) == 0
+    assert seen == [not quiet]
