@@ -9,6 +9,7 @@ engine.  Third parties add an engine through the entry-point group ``freebody.ad
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.metadata
 import re
@@ -108,6 +109,8 @@ class Adapter(ABC):
       integrator_aliases : old integrator names still taken, old -> current (never offered).
       step_rotation_cap_rad : the engine's cap on the angle one step turns through, or None.
       supports_batch : whether :meth:`simulate_batch` steps many bodies at once.
+      steps_runs_together : whether :meth:`step_runs` steps many built runs in one program, each
+        bit for bit as alone (``freebody run`` then steps them together: freebody/run/batching.py).
 
     Every member the harness reads is declared here with its default (docs/adapters.md, "Members",
     lists them; tests/test_adapter_contract_docs.py keeps the two in step), so the harness reads
@@ -146,6 +149,7 @@ class Adapter(ABC):
     step_rotation_cap_rad: ClassVar[float | None] = None
     # Whether :meth:`simulate_batch` steps many bodies at once (``freebody sweep`` asks).
     supports_batch: ClassVar[bool] = False
+    steps_runs_together: ClassVar[bool] = False
 
     def __init__(self, problem: Problem, dt: float, integrator: str, precision: str = "float64"):
         integrator = self.integrator_aliases.get(integrator, integrator)
@@ -250,6 +254,21 @@ class Adapter(ABC):
         trajectory equals what :meth:`simulate` gives for it alone, to round-off (a vectorised
         kernel may order its floating-point operations differently)."""
         raise NotImplementedError(f"{cls.name} does not step bodies as a batch")
+
+    @classmethod
+    def step_runs(cls, adapters: list["Adapter"], steps: list[int],
+                  on_steps: Callable[[int, int], None] | None = None) -> list[Trajectory]:
+        """With ``steps_runs_together``: step each built adapter ``steps[i]`` steps from its current
+        state in one program, each run's samples those of :meth:`simulate` alone, bit for bit;
+        ``on_steps(done, total)`` as the steps of all the runs progress.  Returns the
+        trajectories in order."""
+        raise NotImplementedError(f"{cls.name} does not step runs together")
+
+    @classmethod
+    def runs_scope(cls, precision: str):
+        """A context manager in which many runs of ``precision`` are built and stepped together
+        (an engine with a per-precision global mode enters it once); default: nothing."""
+        return contextlib.nullcontext()
 
     def record_setting(self, key: str, default, value) -> None:
         """Note that the adapter changed an engine default (stored as results.json engine_settings)."""

@@ -379,6 +379,7 @@ class MjxAdapter(Adapter):
         return tuple(n for n, e in _INTEGRATOR_ENUM.items() if hasattr(mjx.IntegratorType, e))
 
     supports_batch: ClassVar[bool] = True
+    steps_runs_together: ClassVar[bool] = True
 
     @classmethod
     def run_load_sampling(cls, problem: Problem) -> str | None:

@@ -476,3 +476,22 @@ def _integrator_name(value: int) -> str:
 def _check(what: str, got, want) -> None:
     if not np.array_equal(np.asarray(got), np.asarray(want)):
         raise RuntimeError(f"mujoco did not take the setting {what}: set {want!r}, read back {got!r}")
+
+
+def rollout_seconds(models: list, datas: list, steps: int, clock: Callable[[Callable[[], object]], float]) -> float:
+    """Seconds (as ``clock(fn)`` measures a call of ``fn``) of one ``mujoco.rollout`` of every
+    model from its data's current state for ``steps`` steps, on one thread (one data), the output
+    array allocated before the clock: ``freebody bench``'s yardstick of MuJoCo's C loop.
+
+    models, datas : lists of B ``MjModel`` / ``MjData`` (the state read from each data).
+    """
+    from mujoco import rollout
+
+    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    size = mujoco.mj_stateSize(models[0], spec)
+    state0 = np.empty((len(models), size))  # (B, nstate): mjSTATE_FULLPHYSICS rows
+    for i, (m, d) in enumerate(zip(models, datas)):
+        mujoco.mj_getState(m, d, state0[i], spec)
+    out = np.empty((len(models), steps, size))  # (B, steps, nstate)
+    with rollout.Rollout(nthread=0) as roller:
+        return clock(lambda: roller.rollout(models, [datas[0]], state0, nstep=steps, state=out))

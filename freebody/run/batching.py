@@ -1,9 +1,9 @@
 """Runs of one engine stepped together before they are judged (``freebody run``'s MJX runs).
 
 An engine whose adapter class steps many runs in one program, each run bit for bit as it steps
-alone, is listed in :data:`LANE_ENGINES` with the name of that classmethod
-(``step_runs(adapters, steps) -> trajectories``; MJX: its LANES-wide vmapped program, see
-:mod:`freebody.adapters.mjx_adapter`).  :func:`step_together` builds those runs' adapters in this
+alone, says so with ``steps_runs_together = True`` and implements the contract's
+``step_runs(adapters, steps, on_steps) -> trajectories`` and ``runs_scope(precision)`` (MJX: its
+LANES-wide vmapped program, see :mod:`freebody.adapters.mjx_adapter`).  :func:`step_together` builds those runs' adapters in this
 process, steps the runs of each (engine, integrator, precision) together, across cases, time steps
 and lengths, and returns what each produced as the :class:`~freebody.run.records.Simulated` that
 :func:`~freebody.run.execute.execute` would have made of it; :func:`freebody.run.suite.run_specs`
@@ -27,12 +27,6 @@ from typing import Callable
 
 from .records import RunSpec, Simulated
 
-# engine -> (the adapter classmethod stepping runs together bit for bit as alone,
-# ``step_runs(adapters, steps, on_steps)``; the classmethod giving the context, per precision,
-# in which its runs are built and stepped, ``runs_scope(precision)``).  Brax: add "brax" here
-# once its adapter has such methods (its vmapped batch is its single run only to round-off).
-LANE_ENGINES: dict[str, tuple[str, str]] = {"mjx": ("step_runs", "runs_scope")}
-
 # At most this many samples of batched runs are held at once (a sample of a Trajectory is 15
 # float64, 120 B: 1.5 M samples ~180 MB; the default suite's MJX runs are 1.2 M); later runs go
 # one by one.
@@ -42,14 +36,17 @@ MAX_BATCHED_SAMPLES = 1_500_000
 def step_together(specs: list[RunSpec], note: Callable[[str], None] | None = None,
                   on_steps: Callable[[int, int, str], None] | None = None,
                   ) -> dict[int, tuple[Simulated, str | None]]:
-    """Step the runs of :data:`LANE_ENGINES` engines among ``specs`` together; spec index ->
+    """Step the runs of engines with ``steps_runs_together`` among ``specs`` together; spec index ->
     (its Simulated, the engine it ports or None).  ``note``: told one line per group stepped
     (engine/integrator/precision, runs, seconds); ``on_steps(done, total, label)``: a group's
     steps so far (the progress display's line while it steps)."""
     out: dict[int, tuple[Simulated, str | None]] = {}
     budget = MAX_BATCHED_SAMPLES
+    classes: dict[str, type | None] = {}
     for (engine, integrator, precision), members in _groups(specs).items():
-        cls = _lane_class(engine)
+        if engine not in classes:
+            classes[engine] = _lane_class(engine)
+        cls = classes[engine]
         if cls is None:
             continue
         chosen = []
@@ -60,9 +57,8 @@ def step_together(specs: list[RunSpec], note: Callable[[str], None] | None = Non
         label = f"{len(chosen)} {engine}/{integrator}/{precision} runs stepped together"
         shown = None if on_steps is None else (lambda done, total: on_steps(done, total, label))
         t0 = time.perf_counter()
-        step_name, scope_name = LANE_ENGINES[engine]
-        with getattr(cls, scope_name)(precision):
-            done = _step_group(cls, getattr(cls, step_name), [(i, specs[i]) for i in chosen], shown)
+        with cls.runs_scope(precision):
+            done = _step_group(cls, cls.step_runs, [(i, specs[i]) for i in chosen], shown)
         out.update(done)
         if note is not None and done:
             note(f"{engine}/{integrator}/{precision}: {len(done)} runs stepped together "
@@ -74,14 +70,15 @@ def _groups(specs: list[RunSpec]) -> dict[tuple, list[int]]:
     """(engine, integrator, precision) -> indices of the specs that may be stepped together."""
     groups: dict[tuple, list[int]] = {}
     for i, s in enumerate(specs):
-        if s.engine in LANE_ENGINES and s.integrator != "*":
+        if s.integrator != "*":
             groups.setdefault((s.engine, s.integrator, s.precision), []).append(i)
     return groups
 
 
 def _lane_class(engine: str):
-    """The engine's adapter class, or None: missing, isolated, failing to load, or not supported
-    in its installed version (its runs then go one by one and record why)."""
+    """The engine's adapter class, or None: not stepping runs together (``steps_runs_together``),
+    missing, isolated, failing to load, or not supported in its installed version (its runs then
+    go one by one, and a failure is recorded by the run)."""
     from ..adapters.base import is_available, load_adapter, unsupported_version
     from ..adapters.capture import capture_output
     from ..envs.engines import isolated
@@ -91,6 +88,8 @@ def _lane_class(engine: str):
             return None
         with capture_output():
             cls = load_adapter(engine)
+        if not cls.steps_runs_together:
+            return None
         return None if unsupported_version(cls, cls.engine_version()) else cls
     except Exception:
         return None

@@ -58,20 +58,12 @@ def rollout_step(steps: int, case: str = CASE) -> Callable[[], float]:
 
 
 def rollout_seconds(models: list, datas: list, steps: int, cpu: bool = False) -> float:
-    """Wall (``cpu``: CPU) seconds of one ``mujoco.rollout.rollout`` of every model from its data's current state
-    for ``steps`` steps, on one thread (one data), the output array allocated before the clock."""
-    import mujoco
-    from mujoco import rollout
+    """Wall (``cpu``: CPU) seconds of one ``mujoco.rollout`` of every model from its data's current
+    state for ``steps`` steps, on one thread (the yardstick engine's own C loop: its adapter module
+    holds the engine calls, ``mujoco_adapter.rollout_seconds``)."""
+    from ...adapters.mujoco_adapter import rollout_seconds as engine_rollout
 
-    spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
-    size = mujoco.mj_stateSize(models[0], spec)
-    state0 = np.empty((len(models), size))  # (B, nstate): mjSTATE_FULLPHYSICS rows
-    for i, (m, d) in enumerate(zip(models, datas)):
-        mujoco.mj_getState(m, d, state0[i], spec)
-    out = np.empty((len(models), steps, size))  # (B, steps, nstate)
-    with rollout.Rollout(nthread=0) as roller:
-        clock = cpu_timed if cpu else timed
-        return clock(lambda: roller.rollout(models, [datas[0]], state0, nstep=steps, state=out))
+    return engine_rollout(models, datas, steps, cpu_timed if cpu else timed)
 
 
 def _timer_or_note(make: Callable[[], Callable[[], float]]):
