@@ -407,3 +407,11 @@ def test_a_failed_run_is_in_the_summary_and_exits_1(tmp_path, capsys, monkeypatc
     row = next(ln for ln in printed.splitlines() if ln.startswith("dzhanibekov "))
     assert row.split()[-1] == "FAIL"
     assert "  crasher/exit: 1 failed in dzhanibekov" in printed and "SystemExit: 4" in printed
+
+
+def test_where_to_look_opens_the_report_not_its_tables_page():
+    """A long report also writes report-tables.html (written before report.html): the line says
+    to open report.html."""
+    last = where_to_look("reports/latest", ["reports/latest/report.md", "reports/latest/report-tables.html",
+                                            "reports/latest/report.html"])
+    assert last.splitlines()[0] == "open reports/latest/report.html (start with the findings at the top)", last

@@ -369,7 +369,9 @@ def where_to_look(out_dir, reports: list) -> str:
     """The last lines of ``freebody run``: what to open first, where the tables and the data are
     (``reports``: the report files written; none: how to write them)."""
     out_dir = Path(out_dir)
-    html = next((Path(p) for p in reports if Path(p).suffix == ".html"), None)
+    pages = [Path(p) for p in reports if Path(p).suffix == ".html"]
+    # the report itself, not the page its long tables moved to (report-tables.html)
+    html = next((p for p in pages if p.name == "report.html"), pages[0] if pages else None)
     md = next((Path(p) for p in reports if Path(p).suffix == ".md"), None)
     lines = []
     if html is not None:
