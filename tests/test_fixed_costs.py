@@ -210,3 +210,112 @@ def test_a_worker_ends_without_teardown_but_flushes_its_streams():
             "print('out', end=''); sys.stderr.write('err')\nexit_now(4)\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert (r.returncode, r.stdout, r.stderr) == (4, "out", "err")
+
+
+# --- engine facts: what the parent reads of an adapter, cached (freebody/envs/facts.py) ---------
+
+ENGINE_MODULES = ("mujoco", "jax", "pydrake", "sapien", "pybullet", "dartpy", "warp", "brax")
+
+_ONE_RUN = """
+import io, json, sys, contextlib
+sys.argv = ["freebody", "run", "dzhanibekov", "--engine", "mujoco", "--integrator", "Euler", "--dt",
+            "0.001", "--duration", "0.01", "--no-report", "--quiet", "--jobs", "1", "--out", sys.argv[1]]
+from freebody.cli import main
+with contextlib.redirect_stdout(io.StringIO()):
+    code = main()
+print(json.dumps([code, sorted(m for m in sys.modules if m.split(".")[0] in ENGINE_MODULES
+                                or m in ("importlib.metadata", "freebody.adapters.mujoco_adapter"))]))
+"""
+
+
+def _one_run(out, env) -> list:
+    r = subprocess.run([sys.executable, "-c", f"ENGINE_MODULES = {ENGINE_MODULES!r}\n" + _ONE_RUN, str(out)],
+                       capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.skipif(not base.is_available("mujoco"), reason="mujoco not installed")
+def test_a_one_mujoco_run_invocation_imports_no_engine_in_the_parent(tmp_path):
+    """With its facts cached (the first invocation wrote them), ``freebody run`` of one MuJoCo run
+    imports no engine in the parent process (nor importlib.metadata): only its worker imports
+    MuJoCo.  The results are those of the invocation that asked the adapter."""
+    import os
+
+    from freebody.results.document import load_results
+
+    env = {**os.environ, "FREEBODY_ENGINE_FACTS_DIR": str(tmp_path / "facts")}
+    first = _one_run(tmp_path / "a", env)
+    assert first[0] == 0 and "mujoco" in first[1]  # a cold cache: the adapter was asked
+    assert len(list((tmp_path / "facts").glob("mujoco-*.json"))) == 1
+    second = _one_run(tmp_path / "b", env)
+    assert second == [0, []]
+    a, b = (load_results(tmp_path / d / "results.json") for d in "ab")
+    assert (a["engines"], a["conventions"]) == (b["engines"], b["conventions"])
+    drop = ("wall_time_s", "trajectory", "compile_time_s")
+    assert [{k: v for k, v in r.items() if k not in drop} for r in a["runs"]] == \
+           [{k: v for k, v in r.items() if k not in drop} for r in b["runs"]]
+
+
+_EXPAND = """
+import json, sys
+from freebody.input.casefile import load_case
+from freebody.run.matrix import expand
+from freebody.run.suite import engine_conventions, engine_versions
+engines = json.loads(sys.argv[1])
+specs = expand([load_case("dzhanibekov")], engines, None, None, 0.01)
+print(json.dumps([[(s.engine, s.integrator, s.precision, s.dt) for s in specs], engine_versions(engines),
+                  engine_conventions(engines),
+                  sorted({m.split(".")[0] for m in sys.modules} & set(ENGINE_MODULES))]))
+"""
+
+
+@pytest.mark.slow  # imports every default engine here (JAX, Drake, SAPIEN): ~4 s quiet, 11 s loaded
+def test_the_run_matrix_of_every_engine_is_expanded_from_cached_facts(tmp_path, monkeypatch):
+    """Facts written to the cache (here by this process, which imports the adapters) are what a
+    later process expands the matrix and records results.json's versions and conventions from,
+    without importing any engine: no JAX, Drake or SAPIEN in a process that expands runs of them."""
+    import os
+
+    from freebody.envs import facts
+    from freebody.run.matrix import expand
+    from freebody.run.suite import engine_conventions, engine_versions
+    from freebody.input.casefile import load_case
+
+    monkeypatch.setenv(facts.FACTS_DIR_VARIABLE, str(tmp_path))
+    monkeypatch.setattr(facts, "_memo", {})
+    engines = base.default_engine_names()
+    installed = [e for e in engines if base.is_available(e)]
+    for e in installed:  # this process's adapters (imported: the live path), written as a miss writes them
+        live = facts.engine_facts(e)
+        assert live is not None, e
+        facts._write(tmp_path / f"{e}-{facts.fingerprint(e, base.registry_entry(e))}.json", live)
+    r = subprocess.run([sys.executable, "-c", f"ENGINE_MODULES = {ENGINE_MODULES!r}\n" + _EXPAND,
+                        json.dumps(engines)], capture_output=True, text=True, timeout=300,
+                       env={**os.environ, facts.FACTS_DIR_VARIABLE: str(tmp_path)})
+    assert r.returncode == 0, r.stderr
+    runs, versions, conventions, imported = json.loads(r.stdout.strip().splitlines()[-1])
+    assert imported == []
+    here = expand([load_case("dzhanibekov")], engines, None, None, 0.01)
+    assert [tuple(x) for x in runs] == [(s.engine, s.integrator, s.precision, s.dt) for s in here]
+    assert versions == engine_versions(engines)
+    assert conventions == json.loads(json.dumps(engine_conventions(engines)))
+
+
+def test_a_stale_or_unreadable_facts_file_is_a_miss(tmp_path, monkeypatch):
+    """Only the file of the current fingerprint is read, and only in the current format; an engine
+    whose adapter module is imported is asked directly (a test's monkeypatched class is seen)."""
+    from freebody.adapters.reference import ReferenceAdapter
+    from freebody.envs import facts
+
+    monkeypatch.setenv(facts.FACTS_DIR_VARIABLE, str(tmp_path))
+    entry = base.registry_entry("reference")
+    key = facts.fingerprint("reference", entry)
+    bogus = {**facts.facts_of(ReferenceAdapter), "integrators": ["from-the-file"]}
+    (tmp_path / f"reference-{key}.json").write_text(json.dumps({"format": facts.FACTS_FORMAT, "facts": bogus}))
+    assert facts._read(tmp_path / f"reference-{key}.json") == bogus
+    (tmp_path / "bad.json").write_text(json.dumps({"format": facts.FACTS_FORMAT + 1, "facts": bogus}))
+    assert facts._read(tmp_path / "bad.json") is None
+    assert facts.engine_facts("reference")["integrators"] == list(ReferenceAdapter.offered_integrators())
+    monkeypatch.setattr(ReferenceAdapter, "opt_in_integrators", ("rk4",))
+    assert facts.engine_facts("reference")["opt_in"] == ["rk4"]

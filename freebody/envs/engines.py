@@ -13,12 +13,11 @@ engine described once.
 """
 from __future__ import annotations
 
-import importlib.metadata
 import sys
 from functools import lru_cache
 
-from ..adapters.base import (UnknownEngine, base_engine, engine_requirement, registry, split_engine_name,
-                             version_in)
+from ..adapters.base import (UnknownEngine, base_engine, engine_requirement, registry, registry_entry,
+                             split_engine_name, version_in)
 from ..errors import InputError
 
 
@@ -31,10 +30,12 @@ def requirement(engine: str) -> str | None:
     try:
         req = engine_requirement(engine)
         spec = split_engine_name(engine)[1]
-        entry = registry()[base_engine(engine)]
+        entry = registry_entry(engine)
     except UnknownEngine as e:
         raise InputError(f"--engine: {e.args[0]}") from None
     if req is not None and spec and entry.environment is None:
+        import importlib.metadata
+
         try:
             here = importlib.metadata.version(entry.distribution)
         except importlib.metadata.PackageNotFoundError:

@@ -82,9 +82,13 @@ def _lane_class(engine: str):
     from ..adapters.base import is_available, load_adapter, unsupported_version
     from ..adapters.capture import capture_output
     from ..envs.engines import isolated
+    from ..envs.facts import engine_facts
 
     try:
         if isolated(engine) or not is_available(engine):
+            return None
+        facts = engine_facts(engine)  # cached: an engine that does not step runs together is not imported
+        if facts is None or not facts["steps_runs_together"]:
             return None
         with capture_output():
             cls = load_adapter(engine)

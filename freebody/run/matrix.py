@@ -8,13 +8,13 @@ import warnings
 import numpy as np
 
 from .. import tolerances as tol
-from ..adapters.base import (UnknownEngine, base_engine, default_engine_names, engine_names, is_available,
-                             load_adapter, resolve_engine, split_engine_name)
-from ..adapters.capture import capture_output
+from ..adapters.base import (UnknownEngine, base_engine, default_engine_names, engine_names, resolve_engine,
+                             split_engine_name)
 from ..errors import InputError
 from ..input.casefile import check_run_settings
 from ..reference_impl.problem import Problem
 from ..envs import engines as engine_envs
+from ..envs.facts import engine_facts
 from .records import PRECISIONS, RunSpec
 
 
@@ -38,17 +38,13 @@ def select_engines(requested: list[str] | None, all_engines: bool = False) -> li
 def engine_integrators(engine: str) -> tuple[str, ...] | None:
     """Integrators the installed engine offers (default first), or None if it is not installed or
     its adapter fails to load (its runs then record skipped or failed, with the reason).  An isolated
-    engine is asked in its environment."""
+    engine is asked in its environment; another from its cached facts (:mod:`freebody.envs.facts`:
+    no engine import once they are cached)."""
     if engine_envs.isolated(engine):
         info = engine_envs.describe(engine)
         return tuple(info["integrators"]) if info.get("integrators") else None
-    if not is_available(engine):
-        return None
-    try:
-        with capture_output():  # some engines print a banner on import (pybullet)
-            return load_adapter(engine).offered_integrators()
-    except Exception:
-        return None
+    facts = engine_facts(engine)
+    return tuple(facts["integrators"]) if facts is not None else None
 
 
 def engine_opt_in(engine: str) -> tuple[str, ...]:
@@ -56,13 +52,8 @@ def engine_opt_in(engine: str) -> tuple[str, ...]:
     when it has none or is not installed here."""
     if engine_envs.isolated(engine):
         return tuple(engine_envs.describe(engine).get("opt_in") or ())
-    if not is_available(engine):
-        return ()
-    try:
-        with capture_output():
-            return tuple(load_adapter(engine).opt_in_integrators)
-    except Exception:
-        return ()
+    facts = engine_facts(engine)
+    return tuple(facts["opt_in"]) if facts is not None else ()
 
 
 def engine_precisions(engine: str) -> tuple[str, ...] | None:
@@ -71,13 +62,8 @@ def engine_precisions(engine: str) -> tuple[str, ...] | None:
     if engine_envs.isolated(engine):
         info = engine_envs.describe(engine)
         return tuple(info["precisions"]) if info.get("precisions") else None
-    if not is_available(engine):
-        return None
-    try:
-        with capture_output():
-            return tuple(load_adapter(engine).precisions)
-    except Exception:
-        return None
+    facts = engine_facts(engine)
+    return tuple(facts["precisions"]) if facts is not None else None
 
 
 def select_precisions(offered: dict[str, tuple[str, ...] | None],
@@ -114,11 +100,8 @@ def integrator_aliases(engine: str) -> dict[str, str]:
     """Old integrator names the engine still takes, old -> current (the adapter class's
     ``integrator_aliases``, e.g. the reference engine's ``symplectic-euler`` -> ``lie-euler``);
     {} when it has none or its adapter does not load."""
-    try:
-        with capture_output():
-            return dict(load_adapter(engine).integrator_aliases)
-    except Exception:
-        return {}
+    facts = engine_facts(engine)  # this environment's adapter (an isolated engine's too, as before)
+    return dict(facts["aliases"]) if facts is not None else {}
 
 
 def _current_name(engine: str, offered: tuple[str, ...], name: str) -> str:

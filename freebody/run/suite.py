@@ -10,7 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
-from ..adapters.base import load_adapter
+from ..envs.facts import convention_rows, engine_facts  # convention_rows: also read from here
 from ..errors import InputError
 from ..results.document import results_document, trajectory_filename, write_trajectory
 from ..results.outdir import OutputFolder, out_folder, output_lock
@@ -23,7 +23,8 @@ EXECUTORS = ("local", "dask")
 
 def engine_versions(engines: list[str]) -> dict[str, str | None]:
     """Installed engine versions (None for an engine that is not installed or fails to import);
-    an isolated engine's (:mod:`freebody.envs.engines`) as its environment reports it."""
+    an isolated engine's (:mod:`freebody.envs.engines`) as its environment reports it, another's
+    from its cached facts (:mod:`freebody.envs.facts`: no engine import once cached)."""
     from ..envs import engines as engine_envs
 
     out = {}
@@ -31,31 +32,22 @@ def engine_versions(engines: list[str]) -> dict[str, str | None]:
         if engine_envs.isolated(e):
             out[e] = engine_envs.describe(e).get("version")
             continue
-        try:
-            out[e] = load_adapter(e).engine_version()
-        except Exception:  # missing (EngineMissing) or broken: its runs say which
-            out[e] = None
+        facts = engine_facts(e)  # missing or broken: None, and its runs say which
+        out[e] = facts["version"] if facts is not None else None
     return out
 
 
-def convention_rows(cls) -> list[list[str]]:
-    """An adapter class's conventions as ``freebody conventions`` and the reports state them:
-    [[convention, text], ...], its load sampling last (results.json ``conventions``, schema 7)."""
-    return [[k, str(v)] for k, v in cls.conventions.items()] + [["load sampling", cls.load_sampling_text()]]
-
-
 def engine_conventions(engines: list[str]) -> dict[str, list[list[str]]]:
-    """engine -> :func:`convention_rows` for each engine whose adapter loads in this process (an
-    isolated engine's, or a missing one's, are left to the report: it says why it has none)."""
+    """engine -> :func:`convention_rows` for each engine whose adapter loads in this environment
+    (an isolated engine's, or a missing one's, are left to the report: it says why it has none)."""
     from ..envs import engines as engine_envs
 
     out = {}
     for e in engines:
-        try:
-            if not engine_envs.isolated(e):
-                out[e] = convention_rows(load_adapter(e))
-        except Exception:  # missing or broken: engine_versions records None
-            pass
+        if not engine_envs.isolated(e):
+            facts = engine_facts(e)
+            if facts is not None:  # missing or broken: engine_versions records None
+                out[e] = facts["conventions"]
     return out
 
 
