@@ -319,3 +319,37 @@ def test_a_stale_or_unreadable_facts_file_is_a_miss(tmp_path, monkeypatch):
     assert facts.engine_facts("reference")["integrators"] == list(ReferenceAdapter.offered_integrators())
     monkeypatch.setattr(ReferenceAdapter, "opt_in_integrators", ("rk4",))
     assert facts.engine_facts("reference")["opt_in"] == ["rk4"]
+
+
+def test_one_identity_of_a_run_for_specs_results_and_compare():
+    """RunSpec.key, RunResult.key and compare's run_key are the same tuple (one helper's order)."""
+    from freebody.input.casefile import load_case
+    from freebody.results.compare import run_key
+    from freebody.run.judge import no_samples, run_identity
+    from freebody.run.records import RunSpec, Status
+
+    spec = RunSpec(load_case("dzhanibekov"), "reference", "rk4", 0.01, 3, "float64")
+    result = no_samples(run_identity(spec), Status.SKIPPED, "not run", 0.0).result
+    assert spec.key == result.key == run_key(result.to_json()) == ("dzhanibekov", "reference", "rk4", "float64", 0.01)
+
+
+def test_the_file_lock_waits_for_another_process_and_says_so(tmp_path):
+    """results.io.file_lock (the shared store's and the environments' lock): a second process waits
+    while the first holds it, ``waiting`` told once."""
+    from freebody.results.io import file_lock
+
+    lock = tmp_path / "x.lock"
+    hold = ("import sys, time\nfrom freebody.results.io import file_lock\n"
+            "with file_lock(__import__('pathlib').Path(sys.argv[1])):\n"
+            "    print('held', flush=True); time.sleep(1.0)\n"
+            "    open(sys.argv[1] + '.done', 'w').close()  # still holding it\n")
+    p = subprocess.Popen([sys.executable, "-c", hold, str(lock)], stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "held"
+    told = []
+    with file_lock(lock, waiting=lambda: told.append(1)):
+        assert (tmp_path / "x.lock.done").exists()  # the holder was done before the block ran
+    p.wait(timeout=60)
+    assert told == [1]
+    with file_lock(lock, waiting=lambda: told.append(2)):
+        pass
+    assert told == [1]

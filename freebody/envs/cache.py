@@ -32,7 +32,7 @@ import tempfile
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Callable, Iterator
+from typing import Callable
 
 from ..errors import InputError
 from .requirements import normalise_requirement
@@ -188,24 +188,14 @@ def site_packages(folder: Path) -> Path:
     return folder / "lib" / f"python{sys.version_info[0]}.{sys.version_info[1]}" / "site-packages"
 
 
-@contextlib.contextmanager
-def locked(root: Path, key: str, waiting: Callable[[], None] | None = None) -> Iterator[None]:
-    """Hold the fcntl lock of one environment (``root/locks/<key>.lock``); ``waiting()`` is called
-    once when another process holds it."""
-    import fcntl
+def locked(root: Path, key: str, waiting: Callable[[], None] | None = None):
+    """Hold the lock of one environment (``root/locks/<key>.lock``, a
+    :func:`freebody.results.io.file_lock`) for a ``with`` block; ``waiting()`` is called once when
+    another process holds it."""
+    from ..results.io import file_lock
 
     (root / "locks").mkdir(parents=True, exist_ok=True)
-    with open(root / "locks" / f"{key}.lock", "a") as f:
-        try:
-            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            if waiting is not None:
-                waiting()
-            fcntl.flock(f, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(f, fcntl.LOCK_UN)
+    return file_lock(root / "locks" / f"{key}.lock", waiting)
 
 
 # --- listing and clearing ------------------------------------------------------------------------------

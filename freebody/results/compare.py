@@ -52,7 +52,7 @@ from ..run.metrics import (ANGULAR_MOMENTUM_ERROR_MAX_ABS, ANGULAR_MOMENTUM_ERRO
                            ORIENTATION_ERROR_MAX_BEFORE_DIVERGENCE, POSITION_ERROR_MAX,
                            ROTATION_ORTHONORMALITY_ERROR_MAX)
 from ..run.experiment import differences, setting_notes
-from ..run.records import Status
+from ..run.records import Status, run_identity_key
 
 VERSION_REASON_CHARS = 160  # why an engine has no version (it failed to load), in the versions table: one line
 STATUS_RANK = {Status.OK: 3, Status.DIVERGED: 2, Status.FAILED: 1}  # skipped: not measured (no rank)
@@ -186,8 +186,8 @@ def load_side(source, role: str) -> dict:
 def run_key(run: dict) -> tuple:
     """(case, engine, integrator, precision, dt): dt rounded to tol.COMPARE_DT_SIGNIFICANT_DIGITS (12)
     significant digits."""
-    return (run["case"], run["engine"], run["integrator"], run["precision"],
-            float(f"{float(run['dt']):.{tol.COMPARE_DT_SIGNIFICANT_DIGITS}g}"))
+    return run_identity_key(run["case"], run["engine"], run["integrator"], run["precision"],
+                            float(f"{float(run['dt']):.{tol.COMPARE_DT_SIGNIFICANT_DIGITS}g}"))
 
 
 # --- tolerances -----------------------------------------------------------------------------------

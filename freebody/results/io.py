@@ -20,6 +20,7 @@ number is missing).
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -28,6 +29,7 @@ import re
 import stat
 from json.encoder import encode_basestring_ascii as _json_string  # the json module's own (C) escaping
 from pathlib import Path
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -295,6 +297,28 @@ def read_json(path: Path, where: str, limit: int = tol.RESULTS_FILE_MAX_BYTES):
         return json.loads(text)
     except json.JSONDecodeError as e:
         raise InputError(f"{where}: not valid JSON: {e.msg} (line {e.lineno}, column {e.colno})") from None
+
+
+@contextlib.contextmanager
+def file_lock(path: Path, waiting: Callable[[], None] | None = None) -> Iterator[None]:
+    """Hold an exclusive lock (fcntl ``flock``) on the file ``path`` for the block (the file is
+    created if missing and left in place: its name is the lock); ``waiting()`` is called once when
+    another process holds it, before waiting for it.  The one file lock of freebody: the shared
+    store's maps (:mod:`freebody.run.sharedcache`) and the engine environments
+    (:func:`freebody.envs.cache.locked`)."""
+    import fcntl
+
+    with open(path, "a") as f:  # closing it releases the lock too
+        try:
+            fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            if waiting is not None:
+                waiting()
+            fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
 
 
 def is_temporary(name: str) -> bool:

@@ -59,8 +59,14 @@ class RunSpec:
 
     @property
     def key(self) -> tuple:
-        """A run's identity: (case, engine, integrator, precision, dt)."""
-        return (self.problem.name, self.engine, self.integrator, self.precision, self.dt)
+        """A run's identity (:func:`run_identity_key`)."""
+        return run_identity_key(self.problem.name, self.engine, self.integrator, self.precision, self.dt)
+
+
+def run_identity_key(case: str, engine: str, integrator: str, precision: str, dt: float) -> tuple:
+    """A run's identity, in the one order every key of a run uses: (case, engine, integrator,
+    precision, dt) (``RunSpec.key``, ``RunResult.key``, :func:`freebody.results.compare.run_key`)."""
+    return (case, engine, integrator, precision, dt)
 
 
 @dataclass(frozen=True)
@@ -109,6 +115,11 @@ class RunResult:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__}
         d["status"] = self.status.value  # a plain string
         return d
+
+    @property
+    def key(self) -> tuple:
+        """The run's identity (:func:`run_identity_key`), as its RunSpec's."""
+        return run_identity_key(self.case, self.engine, self.integrator, self.precision, self.dt)
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ from ..reference_impl.conventions import Trajectory
 from ..reference_impl.engine_maps import map_load_sampling
 from ..reference_impl.integrators import INTEGRATORS
 from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
-from ..results.io import write_npz_atomic
+from ..results.io import file_lock, write_npz_atomic
 from .judge import SCHEME_CANDIDATES, TruthCache
 from .records import RunOutput, RunSpec, Status
 
@@ -61,19 +61,14 @@ def _load(path: Path) -> Trajectory | None:
         return None
 
 
-@contextlib.contextmanager
 def _claimed(path: Path | None):
-    """Hold an exclusive lock (flock) on ``path``'s ``.lock`` file for the block; None (no store):
-    no lock.  The first worker of a group to need a map or a spread computes it while the others
-    wait, then read it: each is computed once per suite, not once per worker that raced for it."""
+    """Hold an exclusive lock on ``path``'s ``.lock`` file for the block
+    (:func:`freebody.results.io.file_lock`); None (no store): no lock.  The first worker of a group
+    to need a map or a spread computes it while the others wait, then read it: each is computed
+    once per suite, not once per worker that raced for it."""
     if path is None:
-        yield
-        return
-    import fcntl
-
-    with open(path.with_name(path.name + ".lock"), "a") as f:  # closing it releases the lock
-        fcntl.flock(f, fcntl.LOCK_EX)
-        yield
+        return contextlib.nullcontext()
+    return file_lock(path.with_name(path.name + ".lock"))
 
 
 def _load_array(path: Path, name: str) -> np.ndarray | None:

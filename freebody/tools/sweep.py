@@ -301,7 +301,7 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
 
 
 def _key(result) -> tuple:
-    return (result.case, result.engine, result.integrator, result.precision, result.dt)
+    return result.key  # RunSpec.key's order (run.records.run_identity_key)
 
 
 def _sweep_run(out) -> dict:
