@@ -489,7 +489,7 @@ class MjxAdapter(Adapter):
 # --- the lanes program: LANES runs side by side -----------------------------------------------------
 
 class _Lanes:
-    """The inputs of the lanes program, host side: per leaf of the MJX Model, Data and mass-matrix
+    """LANES > 1: the inputs of the lanes program, host side: per leaf of the MJX Model, Data and mass-matrix
     mask one numpy array (LANES, ...), lane j holding the world of the run in lane j.  Built from
     numpy arrays every call, so a run alone and a run among others give the program the same kind
     of arguments (shapes, dtypes, no weak types): the same compiled program."""
@@ -524,23 +524,62 @@ class _Lanes:
         (LANES, CHUNK_STEPS, LOAD_ROW).  Returns (qpos (LANES, CHUNK_STEPS, 7), qvel
         (LANES, CHUNK_STEPS, 6) in the run's precision, rows ns[j].. of lane j repeating its last
         state; seconds compiling; seconds stepping)."""
-        if LANES == 1:  # the unbatched program (another last bit: see LANES)
-            args = (jax.tree_util.tree_unflatten(self.model_def, [x[0] for x in self.model]),
-                    jax.tree_util.tree_unflatten(self.data_def, [x[0] for x in self.data]),
-                    rows[0], jnp.int32(ns[0]), None if self.mask is None else self.mask[0])
-            fn, spent = compiled("chunk", _chunk_jit, self.precision, args,
-                                 label=self.integrator, lowering=_masked_make_m)
-        else:
-            args = (jax.tree_util.tree_unflatten(self.model_def, self.model),
-                    jax.tree_util.tree_unflatten(self.data_def, self.data), rows, ns, self.mask)
-            fn, spent = compiled("lanes", _lanes_jit, self.precision, args, extra=(LANES,),
-                                 label=self.integrator, lowering=_masked_make_m)
+        args = (jax.tree_util.tree_unflatten(self.model_def, self.model),
+                jax.tree_util.tree_unflatten(self.data_def, self.data), rows, ns, self.mask)
+        fn, spent = compiled("lanes", _lanes_jit, self.precision, args, extra=(LANES,),
+                             label=self.integrator, lowering=_masked_make_m)
         t0 = time.perf_counter()
         data, Q, V = fn(*args)
         Q, V = np.asarray(Q), np.asarray(V)
         self.data = [np.array(x) for x in jax.tree_util.tree_leaves(data)]
-        if LANES == 1:
-            Q, V, self.data = Q[None], V[None], [x[None] for x in self.data]
+        stepped = time.perf_counter() - t0
+        if Q.dtype != _DTYPE[self.precision]:
+            raise RuntimeError(f"mjx computed qpos in {Q.dtype}, not {self.precision}")
+        return Q, V, spent, stepped
+
+
+class _OneLane:
+    """LANES = 1: the unbatched chunk program (:data:`_chunk_jit`) with the lane's Model, Data and
+    mass-matrix mask kept as device arrays: put once per run (from numpy copies of its leaves:
+    the same shapes and dtypes, no weak types, as :class:`_Lanes` gives), and the Data each call
+    returns passed as it is to the next.  The same program on the same values as host arrays
+    every call, so the same numbers bit for bit; what it saves is moving the ~200 leaves of Model
+    and Data across, both ways, at every call."""
+
+    def __init__(self, first: MjxAdapter):
+        self.model_def = jax.tree_util.tree_structure(first._m)
+        self.data_def = jax.tree_util.tree_structure(first._d)
+        self.masked = first._mask is not None
+        self.precision, self.integrator = first.precision, first.integrator
+        self.model = self.data = self.mask = self.fn = None
+
+    def put(self, lane: int, a: MjxAdapter) -> None:
+        """The lane takes run ``a``'s world (its current state)."""
+        m_leaves, m_def = jax.tree_util.tree_flatten(a._m)
+        d_leaves, d_def = jax.tree_util.tree_flatten(a._d)
+        if m_def != self.model_def or d_def != self.data_def or (a._mask is None) == self.masked:
+            raise ValueError("step_runs: the runs' MJX models differ in structure")
+        host = [np.array(x) for x in m_leaves], [np.array(x) for x in d_leaves]
+        m_dev, d_dev = jax.device_put(host)
+        self.model = jax.tree_util.tree_unflatten(self.model_def, m_dev)
+        self.data = jax.tree_util.tree_unflatten(self.data_def, d_dev)
+        self.mask = None if a._mask is None else jax.device_put(np.array(a._mask))
+        self.fn = None  # looked up again (the cache's key is the arguments')
+
+    def lane_data(self, lane: int):
+        """The lane's mjx.Data (device arrays, as the program returned them)."""
+        return self.data
+
+    def step(self, rows: np.ndarray, ns: np.ndarray):
+        """As :meth:`_Lanes.step` for one lane: rows (1, CHUNK_STEPS, LOAD_ROW), ns (1,)."""
+        args = (self.model, self.data, rows[0], jnp.int32(ns[0]), self.mask)
+        spent = 0.0
+        if self.fn is None:
+            self.fn, spent = compiled("chunk", _chunk_jit, self.precision, args,
+                                      label=self.integrator, lowering=_masked_make_m)
+        t0 = time.perf_counter()
+        self.data, Q, V = self.fn(*args)
+        Q, V = np.asarray(Q)[None], np.asarray(V)[None]
         stepped = time.perf_counter() - t0
         if Q.dtype != _DTYPE[self.precision]:
             raise RuntimeError(f"mjx computed qpos in {Q.dtype}, not {self.precision}")
@@ -553,7 +592,7 @@ class _LaneRuns:
 
     def __init__(self, adapters: list[MjxAdapter], steps: list[int], out: list):
         self.adapters, self.steps, self.out = adapters, [int(n) for n in steps], out
-        self.lanes = _Lanes(adapters[0])
+        self.lanes = _OneLane(adapters[0]) if LANES == 1 else _Lanes(adapters[0])
         self.queue = list(range(len(adapters)))[::-1]  # popped from the end: in order
         self.lane_run: list[int | None] = [None] * LANES
         self.done = [0] * len(adapters)
