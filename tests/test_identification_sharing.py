@@ -5,11 +5,13 @@ not once per map; a worker that finds a group's maps in the shared store compute
 judged against the shared maps gets exactly the result it gets alone."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from freebody.input import load_case
-from freebody.reference_impl import integrators
+from freebody.reference_impl import integrators, prepared_maps
 from freebody.run import judge
 from freebody.run.judge import (SCHEME_CANDIDATES, ULP_SIGN_PATTERNS, MapPiece, TruthCache, identify,
                                 perturbed_starts, roundoff_spread, stepped_map_pieces)
@@ -22,20 +24,25 @@ CASE, DT, STEPS = "body_torque_spinup", 0.01, 20
 
 @pytest.fixture
 def counted(monkeypatch):
-    """Counts of perturbed_start and map runs (integrators.simulate) from here on."""
+    """Counts of perturbed_start and map runs (integrators.simulate, and prepared_maps.run_map and
+    map_orientations: what identification runs, from starts prepared once) from here on."""
     n = {"perturbed_start": 0, "simulate": 0}
-    start, simulate = judge.perturbed_start, integrators.simulate
+    start, simulate, run_map = judge.perturbed_start, integrators.simulate, prepared_maps.run_map
+    orientations = prepared_maps.map_orientations
 
     def counting_start(*a, **k):
         n["perturbed_start"] += 1
         return start(*a, **k)
 
-    def counting_simulate(*a, **k):
-        n["simulate"] += 1
-        return simulate(*a, **k)
+    def counting(f):
+        def counted_run(*a, **k):
+            n["simulate"] += 1
+            return f(*a, **k)
+        return counted_run
     monkeypatch.setattr(judge, "perturbed_start", counting_start)
-    monkeypatch.setattr(integrators, "simulate", counting_simulate)
-    monkeypatch.setattr(judge, "reference_simulate", counting_simulate)
+    monkeypatch.setattr(integrators, "simulate", counting(simulate))
+    monkeypatch.setattr(judge, "run_map", counting(run_map))
+    monkeypatch.setattr(judge, "map_orientations", counting(orientations))
     return n
 
 
@@ -141,3 +148,77 @@ def test_a_worker_waits_for_the_map_another_is_computing(tmp_path, counted):
     reader.join(10)
     assert counted["simulate"] == n  # the waiting worker read the map, it did not run it
     assert np.array_equal(got["q"], tr.quaternion_wxyz)
+
+
+def _per_map(pb, trajectory, spec, cache):
+    """identify() with the run compared with one map after another (no stacked CandidateMaps)."""
+    spec = dataclasses.replace(spec, problem=pb)
+    ident = judge.Identification(spec, judge.cached_map_pieces(spec, cache))
+    ident.update(trajectory.quaternion_wxyz)
+    return ident.result()
+
+
+def _runs(pb, dt, steps):
+    """Engine-like runs of the case: several maps' own runs, one between two maps, one that blows up
+    half way, one shorter than the group's maps."""
+    runs = [integrators.simulate(pb, name, dt, steps)
+            for name in ("semi-implicit-explicit-gyro", "rkmk4-body", "implicit-gyro-split-torque",
+                         "quat-rate-euler", "symplectic-splitting")]
+    a, b = runs[0].quaternion_wxyz, runs[3].quaternion_wxyz
+    between = (a + b) / np.linalg.norm(a + b, axis=1, keepdims=True)
+    blown = runs[1].quaternion_wxyz.copy()
+    blown[steps // 2:] = np.inf
+    return runs + [dataclasses.replace(runs[0], quaternion_wxyz=between),
+                   dataclasses.replace(runs[1], quaternion_wxyz=blown), runs[2].head(steps // 3)]
+
+
+# the sharing case; a fast spin at a coarse step (maps whose perturbed copies reach the level's cap:
+# undecidable); a coarse flip (a map whose own run is not finite)
+GROUPS = [(CASE, DT, STEPS), ("high_spin_dt_10ms", 0.01, 60), ("dzhanibekov", 0.05, 100)]
+
+
+@pytest.mark.parametrize("case, dt, steps", GROUPS)
+@pytest.mark.parametrize("precision", ["float64", "float32"])
+def test_the_stacked_comparison_is_the_one_map_at_a_time_result(case, dt, steps, precision):
+    """A run compared with every map at once (CandidateMaps, the group's runs) gets exactly the dict
+    it gets compared with one map after another: verdicts, every candidate's difference, level and
+    ratio, the tie, the undecidable maps."""
+    pb = load_case(case)
+    spec = RunSpec(pb, "mujoco", "Euler", dt, steps, precision)
+    shared = TruthCache()
+    for tr in _runs(pb, dt, steps):
+        stacked = identify(pb, tr, spec, shared)
+        assert shared.candidate_maps(pb, dt, steps, precision, "per-stage", SCHEME_CANDIDATES) is not None
+        assert stacked == _per_map(pb, tr, spec, TruthCache())
+
+
+def test_a_further_run_of_a_group_is_compared_in_one_pass(monkeypatch):
+    """The group's first run compares the maps that reproduce it pair by pair (the tie); a further
+    run with the same maps within reach is compared with every map in one pass and finds the pairs
+    found already: one angle computation, whatever the number of maps."""
+    pb = load_case(CASE)
+    spec, tr = RunSpec(pb, "mujoco", "Euler", DT, STEPS), _run(pb)
+    cache = TruthCache()
+    first = identify(pb, tr, spec, cache)
+    assert len(first["indistinguishable"]) > 1  # a tie: pairs of maps were compared
+    calls = {"n": 0}
+    angle = judge._angle
+
+    def counting_angle(*a):
+        calls["n"] += 1
+        return angle(*a)
+    monkeypatch.setattr(judge, "_angle", counting_angle)
+    assert identify(pb, tr, dataclasses.replace(spec, integrator="implicit"), cache) == first
+    assert calls["n"] == 1
+
+
+def test_a_group_too_long_to_stack_is_compared_map_by_map(monkeypatch):
+    """Past STACKED_SAMPLES_MAX candidates x samples the maps are not stacked (memory): the run is
+    compared with one map after another, with the same result."""
+    pb = load_case(CASE)
+    spec, tr = RunSpec(pb, "mujoco", "Euler", DT, STEPS), _run(pb, "rk4")
+    want = identify(pb, tr, spec, TruthCache())
+    monkeypatch.setattr(judge, "STACKED_SAMPLES_MAX", len(SCHEME_CANDIDATES) * (STEPS + 1) - 1)
+    cache = TruthCache()
+    assert cache.candidate_maps(pb, DT, STEPS, "float64", "per-stage", SCHEME_CANDIDATES) is None
+    assert identify(pb, tr, spec, cache) == want

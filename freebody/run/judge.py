@@ -22,12 +22,11 @@ import numpy as np
 from .. import tolerances as tol
 from ..adapters.base import EngineDiverged, load_adapter
 from ..adapters.capture import cap_line
-from ..reference_impl import integrators as _maps
 from ..reference_impl.conventions import Trajectory
 from ..reference_impl.engine_maps import ENGINE_MAPS, map_load_sampling
 from ..reference_impl.sampling import LOAD_SAMPLING_PER_STAGE
 from ..reference_impl.integrators import INTEGRATORS
-from ..reference_impl.integrators import simulate as reference_simulate
+from ..reference_impl.prepared_maps import MapStart, map_orientations, map_start, run_map
 from ..reference_impl.problem import InitialState, Problem
 from ..reference_impl.rotations import geodesic_angle
 from ..reference_impl.truth import truth_chunks, truth_kind, truth_trajectory
@@ -48,6 +47,10 @@ ENGINE_SCHEMES = ("semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro")
 # other reference integrators (textbook schemes no engine is known to use).
 SCHEME_CANDIDATES = (*ENGINE_SCHEMES, "rk4", *ENGINE_MAPS,
                      *(n for n in INTEGRATORS if n not in (*ENGINE_SCHEMES, "rk4")))
+# A run judged whole is compared with every candidate map at once (:class:`CandidateMaps`) when the
+# candidates x samples are at most this many (one temporary array of the comparison: 2 MB); a longer
+# run is compared with one map after another (the same numbers), which bounds its memory.
+STACKED_SAMPLES_MAX = 1 << 18
 
 
 def judge_run(spec: RunSpec, sim: Simulated, cache: "TruthCache", identify_scheme: bool = True,
@@ -74,7 +77,8 @@ def judge_run(spec: RunSpec, sim: Simulated, cache: "TruthCache", identify_schem
     whole_truth, truth = truth, truth.head(len(trajectory))
     scheme = identify_scheme and not spec.is_reference
     judge = RunJudge(spec, truth_scales(pb, truth),
-                     Identification(spec, cached_map_pieces(spec, cache)) if scheme else None,
+                     Identification(spec, cached_map_pieces(spec, cache),
+                                    lambda: cached_candidate_maps(spec, cache)) if scheme else None,
                      VsEngine(spec, compare_with, cached_engine_pieces(spec, cache)) if scheme and compare_with else None)
     judge.feed(trajectory, truth, diverged_at)
     result = recorded(RunResult(**base, **judge.outcome(sim.reason), wall_time_s=sim.wall_time_s,
@@ -287,7 +291,7 @@ class TruthCache:
         load_sampling = map_load_sampling(problem, integrator, load_sampling)
         key = (id(problem), problem.name, dt, steps, integrator, load_sampling)
         if key not in self._cache:
-            self._cache[key] = reference_simulate(problem, integrator, dt, steps, load_sampling=load_sampling)
+            self._cache[key] = run_map(self.map_start(problem, dt), integrator, steps, load_sampling)
         return self._cache[key]
 
     def orientation(self, problem: Problem, integrator: str, dt: float, steps: int,
@@ -313,7 +317,24 @@ class TruthCache:
             q = self.orientation(problem, integrator, dt, steps, load_sampling)
             self._cache[key] = roundoff_spread(problem, integrator, dt, steps, precision, q,
                                                load_sampling=load_sampling,
-                                               starts=self.perturbed_starts(problem, precision))
+                                               starts=self.perturbed_map_starts(problem, dt, precision))
+        return self._cache[key]
+
+    def map_start(self, problem: Problem, dt: float) -> MapStart:
+        """The case's own start at dt, prepared once for every map run from it (:func:`map_start`)."""
+        key = (id(problem), problem.name, "map-start", float(dt))
+        if key not in self._cache:
+            self._cache[key] = map_start(problem, dt)
+        return self._cache[key]
+
+    def perturbed_map_starts(self, problem: Problem, dt: float, precision: str = "float64") -> tuple[MapStart, ...]:
+        """The case's :meth:`perturbed_starts` at dt, each prepared once for every map's copy
+        (:func:`map_start`; the loads are the case's: formed once)."""
+        key = (id(problem), problem.name, "perturbed-map-starts", float(dt), precision)
+        if key not in self._cache:
+            loads = self.map_start(problem, dt).loads
+            self._cache[key] = tuple(map_start(pb_u, dt, loads if pb_u.loads is problem.loads else None)
+                                     for pb_u in self.perturbed_starts(problem, precision))
         return self._cache[key]
 
     def perturbed_starts(self, problem: Problem, precision: str = "float64") -> tuple[Problem, ...]:
@@ -339,9 +360,31 @@ class TruthCache:
             self._cache[key] = self._cache[canonical]
         return self._cache[key]
 
+    def candidate_maps(self, problem: Problem, dt: float, steps: int, precision: str, load_sampling: str,
+                       names: tuple[str, ...]) -> "CandidateMaps | None":
+        """Every candidate map ``names`` of the group (their :meth:`map_piece`) stacked as one
+        :class:`CandidateMaps`, prepared once and shared by every run of the same (case, dt, steps,
+        precision, load sampling); None for a group too long to stack
+        (:data:`STACKED_SAMPLES_MAX`: its runs compare with each map in turn)."""
+        if len(names) * (int(steps) + 1) > STACKED_SAMPLES_MAX:
+            return None
+        key = (id(problem), problem.name, dt, steps, "candidates", precision, load_sampling, names)
+        if key not in self._cache:
+            self._cache[key] = CandidateMaps.of(names, [self.map_piece(problem, name, dt, steps, precision,
+                                                                       load_sampling) for name in names])
+        return self._cache[key]
+
     def _simulate_map(self, problem: Problem, integrator: str, dt: float, steps: int,
                       load_sampling: str = LOAD_SAMPLING_PER_STAGE) -> Trajectory:
-        return reference_simulate(problem, integrator, dt, steps, load_sampling=load_sampling)
+        """The map's whole run from the case's start (``integrators.simulate``'s, bit for bit), its
+        set-up formed once per group (:meth:`map_start`)."""
+        return run_map(self.map_start(problem, dt), integrator, steps, load_sampling)
+
+
+def cached_candidate_maps(spec: RunSpec, cache: TruthCache) -> "CandidateMaps | None":
+    """The candidate maps of a run judged whole, stacked (:meth:`TruthCache.candidate_maps`), or None."""
+    return cache.candidate_maps(spec.problem, spec.dt, spec.steps, spec.precision, identification_sampling(spec),
+                                scheme_candidates(spec.integrator, spec.steps))
 
 
 def cached_map_pieces(spec: RunSpec, cache: TruthCache) -> Callable[[str], Iterator]:
@@ -521,18 +564,26 @@ def perturbed_starts(pb: Problem, precision: str = "float64") -> tuple[Problem, 
 
 def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precision: str,
                     q_ref: np.ndarray, load_sampling: str = LOAD_SAMPLING_PER_STAGE,
-                    starts: tuple[Problem, ...] | None = None) -> np.ndarray:
+                    starts: tuple[Problem | MapStart, ...] | None = None) -> np.ndarray:
     """(steps + 1,) rad: the orientation of the map ``integrator`` (its run's q_ref (steps + 1, 4))
     against the same map from each of the :func:`perturbed_start` of :data:`ULP_SIGN_PATTERNS`
     (same dt, same load steps), the largest sample by sample.  A sample where either is not finite
     is inf (a perturbed copy blew up: the map can identify nothing there, see :class:`Identification`).
-    ``starts``: those starts, :func:`perturbed_starts` of (pb, precision), if built already."""
-    spread = np.zeros(len(q_ref))
-    for pb_u in perturbed_starts(pb, precision) if starts is None else starts:
-        other = _maps.simulate(pb_u, integrator, dt, steps,  # not reference_simulate: no map the cache holds
-                               load_sampling=load_sampling)
-        spread = _spread_update(spread, q_ref, other.quaternion_wxyz)
-    return spread
+    ``starts``: those starts, :func:`perturbed_starts` of (pb, precision), if built already, as
+    Problems or prepared at dt (:func:`map_start`, :meth:`TruthCache.perturbed_map_starts`)."""
+    runs = []
+    for start in perturbed_starts(pb, precision) if starts is None else starts:
+        if not isinstance(start, MapStart):
+            start = map_start(start, dt)
+        elif start.dt != float(dt):
+            raise ValueError(f"a start prepared at dt = {start.dt!r} for a spread at dt = {dt!r}")
+        runs.append(map_orientations(start, integrator, steps, load_sampling))
+    if not runs:
+        return np.zeros(len(q_ref))
+    with np.errstate(invalid="ignore"):
+        s = _angle(q_ref, np.stack(runs))  # (starts, N): every copy at once
+    # the largest over the copies (none is NaN: inf where not finite), as _spread_update one by one
+    return np.maximum(np.zeros(len(q_ref)), np.where(np.isfinite(s), s, np.inf).max(axis=0))
 
 
 def _spread_update(spread: np.ndarray, q_ref: np.ndarray, q_other: np.ndarray) -> np.ndarray:
@@ -544,12 +595,14 @@ def _spread_update(spread: np.ndarray, q_ref: np.ndarray, q_other: np.ndarray) -
 
 
 def _angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
-    """Angle (rad) of the rotation between quaternions qa and qb (N, 4), wxyz: 2 atan2(|vec(d)|,
+    """Angle (rad) of the rotation between quaternions qa and qb (..., N, 4), wxyz, broadcast
+    against each other (e.g. (C, N, 4) maps and one run's (N, 4): (C, N)): 2 atan2(|vec(d)|,
     |w(d)|) with d = conj(qa) qb, as :func:`~freebody.reference_impl.rotations.geodesic_angle`
     (to round-off) without its normalisations, which the ratio does not need: 8x faster, and
-    identification compares every run with seven maps."""
-    aw, ax, ay, az = qa.T
-    bw, bx, by, bz = qb.T
+    identification compares every run with every candidate map.  Element by element the same
+    floats whatever the shapes (numpy's ufuncs round each element alone)."""
+    aw, ax, ay, az = qa[..., 0], qa[..., 1], qa[..., 2], qa[..., 3]
+    bw, bx, by, bz = qb[..., 0], qb[..., 1], qb[..., 2], qb[..., 3]
     w = aw * bw + ax * bx + ay * by + az * bz
     vx = aw * bx - bw * ax - (ay * bz - az * by)
     vy = aw * by - bw * ay - (az * bx - ax * bz)
@@ -631,8 +684,8 @@ def identify(pb: Problem, trajectory: Trajectory, spec: RunSpec, cache: TruthCac
 
     The run is taken in as one chunk of :class:`Identification` (a long run: chunk by chunk).
     """
-    ident = Identification(dataclasses.replace(spec, problem=pb), cached_map_pieces(
-        dataclasses.replace(spec, problem=pb), cache))
+    spec = dataclasses.replace(spec, problem=pb)
+    ident = Identification(spec, cached_map_pieces(spec, cache), lambda: cached_candidate_maps(spec, cache))
     ident.update(trajectory.quaternion_wxyz)
     return ident.result()
 
@@ -681,17 +734,66 @@ def map_piece(q_ref: np.ndarray, spread: np.ndarray, precision: str, k0: int = 0
     return MapPiece(q_ref, level, raw, spread_max, theta)
 
 
+@dataclasses.dataclass(frozen=True)
+class CandidateMaps:
+    """Every candidate map of a group over its whole run, stacked: what a run judged whole is
+    compared with, all maps at once (:meth:`Identification.update`), prepared once per (case, dt,
+    steps, precision, load sampling) by :meth:`TruthCache.candidate_maps` from the maps'
+    :class:`MapPiece`.
+
+    names : the C maps, in :func:`scheme_candidates` order.
+    q : (C, N, 4) wxyz, body -> world: each map's orientations.
+    level, raw : (C, N) rad: each map's :attr:`MapPiece.level` and :attr:`MapPiece.raw`.
+    agree : which pairs of maps agree within their levels over a run's samples (:meth:`within`),
+        found once for the group's runs.
+    """
+
+    names: tuple[str, ...]
+    q: np.ndarray
+    level: np.ndarray
+    raw: np.ndarray
+    agree: dict = dataclasses.field(default_factory=dict, compare=False)
+
+    @classmethod
+    def of(cls, names: tuple[str, ...], pieces: list[MapPiece]) -> "CandidateMaps | None":
+        """The maps' pieces stacked; None unless every piece has the same number of samples."""
+        n = len(pieces[0].q) if pieces else 0
+        if not pieces or any(len(p.q) != n or len(p.level) != n or len(p.raw) != n for p in pieces):
+            return None
+        return cls(tuple(names), np.stack([p.q for p in pieces]), np.stack([p.level for p in pieces]),
+                   np.stack([p.raw for p in pieces]))
+
+    def within(self, pairs: list[tuple[int, int]], k0: int, n: int) -> list[bool]:
+        """For each pair (a, b) of map indices, whether the two maps agree within the larger of
+        their levels at each of their samples k0 .. k0 + n - 1 (:func:`_within`), each pair found
+        once for every run of the group."""
+        todo = [p for p in pairs if (p, k0, n) not in self.agree]
+        size = max(1, STACKED_SAMPLES_MAX // max(n, 1))  # pairs compared at once
+        q, level = self.q[:, k0:k0 + n], self.level[:, k0:k0 + n]
+        for i in range(0, len(todo), size):
+            a, b = np.array(todo[i:i + size]).T
+            with np.errstate(invalid="ignore"):
+                ok = np.all(_angle(q[a], q[b]) <= np.maximum(level[a], level[b]), axis=1)
+            self.agree.update(((p, k0, n), v) for p, v in zip(todo[i:i + size], ok.tolist()))
+        return [self.agree[(p, k0, n)] for p in pairs]
+
+
 class Identification:
     """Scheme identification (:func:`identify`) of a run taken in chunk by chunk: per candidate
     map, the running maxima of its difference and of the difference over its round-off level
     (on the samples below the cap), the level's running base, whether it reached the cap (undecidable), and for each pair of maps that
     still reproduce the run whether they are within their levels of each other so far (the tie).
     ``pieces(name)`` yields the map's q and round-off spread over the same samples as each chunk
-    of the run."""
+    of the run.  ``maps``: called at the first update, the same maps stacked
+    (:class:`CandidateMaps`, a run judged whole) or None: the run is then compared with all of them
+    at once, with the same numbers."""
 
-    def __init__(self, spec: RunSpec, pieces: Callable[[str], Iterator]):
+    def __init__(self, spec: RunSpec, pieces: Callable[[str], Iterator],
+                 maps: Callable[[], CandidateMaps | None] | None = None):
         self.spec = spec
         self.names = scheme_candidates(spec.integrator, spec.steps)
+        self._stacked = maps
+        self.maps: CandidateMaps | None = None
         self.pieces = {name: pieces(name) for name in self.names}
         self.spread_max = {name: 0.0 for name in self.names}  # the map's own spread so far
         self.theta = {name: 0.0 for name in self.names}  # the angle the map turned through so far
@@ -706,6 +808,11 @@ class Identification:
 
     def update(self, q: np.ndarray) -> None:
         """The run's orientations q (m, 4) of its next m samples."""
+        if self._stacked is not None:  # the maps are prepared when first needed (not for a diverged run)
+            maps, self._stacked = self._stacked(), None
+            self.maps = maps if maps is not None and maps.names == self.names else None
+        if self.maps is not None:
+            return self._update_stacked(q)
         n, k0 = len(q), self.n
         kept = {}
         for name in self.names:
@@ -736,6 +843,45 @@ class Identification:
         for pair in itertools.combinations(kept, 2):
             if pair not in self.apart and not _within(kept[pair[0]], kept[pair[1]]):
                 self.apart.add(pair)
+        self.n += n
+
+    def _update_stacked(self, q: np.ndarray) -> None:
+        """:meth:`update` against every map at once (:attr:`maps`: whole runs, the samples from
+        this update's first on): the same state, from the same floats, as one map after another."""
+        n, k0, maps, cap = len(q), self.n, self.maps, tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD
+        if n == 0:
+            return
+        q_maps, level, raw = maps.q[:, k0:k0 + n], maps.level[:, k0:k0 + n], maps.raw[:, k0:k0 + n]
+        m = q_maps.shape[1]  # the maps' samples among the run's
+        for c, name in enumerate(self.names):
+            if m:
+                self.levels[name], self.roundoff[name] = float(level[c, m - 1]), float(raw[c, m - 1])
+        if m < n:  # the maps have fewer samples than the run: nothing to compare
+            self.diffs.update(dict.fromkeys(self.names))
+            self.ratios.update(dict.fromkeys(self.names))
+            self.n += n
+            return
+        with np.errstate(invalid="ignore", divide="ignore"):
+            d = _angle(q_maps, q)  # (C, n)
+            finite = np.isfinite(d)
+            open_ = (level < cap) & finite  # where each map can tell anything
+            ratio = np.where(open_, d / level, -np.inf).max(axis=1)
+        shut, all_finite, d_max, any_open = ~open_.all(axis=1), finite.all(axis=1), d.max(axis=1), open_.any(axis=1)
+        kept = []
+        for c, name in enumerate(self.names):
+            self.closed[name] = self.closed[name] or bool(shut[c])
+            if self.diffs[name] is not None:
+                self.diffs[name] = max(self.diffs[name], float(d_max[c])) if all_finite[c] else None
+            if self.ratios[name] is None:
+                continue
+            if any_open[c]:
+                self.ratios[name] = max(self.ratios[name], float(ratio[c]))
+            if self.ratios[name] <= 1.0 and not self.closed[name]:
+                kept.append(c)
+        pairs = [p for p in itertools.combinations(kept, 2) if (self.names[p[0]], self.names[p[1]]) not in self.apart]
+        for (a, b), ok in zip(pairs, maps.within(pairs, k0, n)):
+            if not ok:
+                self.apart.add((self.names[a], self.names[b]))
         self.n += n
 
     def _next_piece(self, name: str, k0: int) -> "MapPiece":
