@@ -28,7 +28,7 @@ import pytest
 from freebody.cli import main
 from freebody.errors import InputError
 from freebody.input.casefile import load_case
-from freebody.results.document import load_trajectory, trajectory_filename
+from freebody.results.document import load_trajectory, trajectory_filename, write_trajectory
 from freebody.results.io import is_temporary
 from freebody.results.outdir import FAULT_ENV, FAULT_POINTS, LOCK, OWNED, PREVIOUS, output_lock
 from freebody.run import expand
@@ -261,11 +261,13 @@ def test_a_kill_at_each_point_of_the_publish_leaves_results_consistent_with_thei
 def test_report_and_compare_read_the_flat_layout_of_earlier_releases(previous, capsys):
     out, _, _ = previous
     doc = json.loads((out / "results.json").read_text())
-    for r in doc["runs"]:  # as written before per-invocation folders: trajectories/<file>.npz
+    for r in doc["runs"]:  # as written before per-invocation folders: trajectories/<file>.npz, format 1
         flat = "trajectories/" + Path(r["trajectory"]).name
-        (out / r["trajectory"]).rename(out / flat)
+        with np.load(out / r["trajectory"]) as z:
+            index = z["sample_index"]
+        write_trajectory(out / flat, *load_trajectory(out / r["trajectory"]), index, trajectory_format=1)
         r["trajectory"] = flat
-    (out / "trajectories" / "1").rmdir()
+    shutil.rmtree(out / "trajectories" / "1")
     (out / OWNED).unlink()
     (out / "results.json").write_text(json.dumps(doc))
     (out / "trajectories" / "mine.npz").write_bytes(b"a user's file")

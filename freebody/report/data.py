@@ -666,9 +666,9 @@ class NoTruth(Exception):
 
 class SeriesReader:
     """Reads runs' trajectory files for the per-case figures: only the drawn arrays, and each
-    distinct truth once.  The runs of a case at one dt carry the same truth in each of their files;
-    truths whose arrays have the same CRC-32 and size in the files' zip directories are read and
-    reduced (L, KE, E) once.
+    distinct truth once.  The runs of a case at one dt share a truth (a format-2 file names its truth
+    file); truths of equal ``truth_key`` (:meth:`freebody.results.document.TrajectoryArrays.truth_key`:
+    the same arrays) are read and reduced (L, KE, E) once.
 
     physics : the case's CasePhysics, or None (then only the orientation error and the angular
     velocity are available)."""
@@ -679,9 +679,8 @@ class SeriesReader:
 
     def _truth(self, z) -> TruthSeries | None:
         names = ["truth_" + f for f in _DRAWN_FIELDS]
-        try:
-            key = tuple((i.CRC, i.file_size) for i in (z.zip.getinfo(n + ".npy") for n in names))
-        except KeyError:
+        key = z.truth_key()
+        if key is None:
             return None
         hit = self._truths.get(key)
         if hit is None:
@@ -699,9 +698,9 @@ class SeriesReader:
         the file is unreadable, InputError (FileRefused) when it is no regular file or too large for
         the run (:func:`freebody.results.document.trajectory_max_bytes`); NoTruth when it has no
         truth or no samples."""
-        from ..results.document import open_npz, trajectory_max_bytes
+        from ..results.document import open_trajectory, trajectory_max_bytes
 
-        with open_npz(path, trajectory_max_bytes(run)) as z:
+        with open_trajectory(path, trajectory_max_bytes(run)) as z:
             truth = self._truth(z)
             if truth is None:
                 raise NoTruth(path)

@@ -50,11 +50,17 @@ and bump no schema version: every document read, of either version, has the old 
 the current ones (:func:`upgrade_names`), so that an old baseline still matches today's runs.
 
 Written with sorted keys; non-finite numbers become null (the run's status says why).  Readers
-ignore keys they do not know.  A trajectory file (npz) holds the run's arrays and its truth's:
+ignore keys they do not know.  A run's trajectory file (npz) gives the run's arrays and its truth's:
 ``t (N,)``, ``position (N, 3)``, ``quaternion_wxyz (N, 4)``, ``linear_velocity (N, 3)``,
 ``angular_velocity (N, 3)`` [, ``orthonormality_error (N,)``], and the same with a ``truth_`` prefix,
-at the saved samples (see :data:`SAVED_SAMPLES`); files written by this release on also hold
-``sample_index (N,)`` int64, the step k of each saved sample (t = k dt).
+at the saved samples (see :data:`SAVED_SAMPLES`), and ``sample_index (N,)`` int64, the step k of each
+saved sample (t = k dt; files of early releases lack it).  Trajectory format 2 (issue 29: this
+release on; :data:`TRAJECTORY_FORMAT`, written into each file's ``layout``) stores a (case, dt)'s
+truth once, in a truth file ``truth__<hash>.npz`` beside its runs' files that each run's file names,
+leaves out ``t`` when it is ``sample_index * dt``, and stores the samples XOR-delta'd and
+byte-shuffled (lossless); format 1 (each array under its name in the run's file) is still read.
+Readers open either through :func:`open_trajectory` / :func:`load_trajectory`, which give the same
+arrays by the same names, bit for bit.
 A run's ``trajectory`` is its file's path relative to the folder of results.json:
 ``trajectories/<n>/<name>.npz``, one folder ``<n>`` per invocation (see :mod:`.outdir`), or
 ``trajectories/<name>.npz`` in folders written by earlier releases.  Readers open it only through
@@ -67,7 +73,10 @@ import hashlib
 import json
 import os
 import platform
+import re
 import zipfile
+import zlib
+from collections.abc import Mapping
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path, PurePosixPath, PureWindowsPath
@@ -218,23 +227,184 @@ def samples_to_save(tr: Trajectory, truth: Trajectory | None, every: int | None 
     return tr, truth, idx
 
 
-def write_trajectory(path: Path, tr: Trajectory, truth: Trajectory | None, index: np.ndarray) -> None:
-    """Write a run's saved samples (from :func:`samples_to_save`) to ``path`` atomically."""
+# --- trajectory files: format 2 (one truth file shared by the runs that have its samples) ---------
+#
+# A run's file (format 2) holds, as members of an npz archive (each an .npy, np.load reads them):
+#   layout        0-d str: JSON {"trajectory_format": 2, "dt": dt or null, "columns": [field, ...],
+#                 "truth": null | {"file": name or null, "columns": [field, ...]}}
+#   sample_index  (K,) int64, the step k of each saved sample, ascending
+#   samples       (8 K C,) uint8: the run's columns as a (K, C) float64 block (:func:`encode_block`)
+#   truth_extra   (8 K' C',) uint8: the truth's columns at the run's samples its truth file lacks
+# Columns are fields of :data:`_FIELDS` (and ``orthonormality_error``), in that order; each is one
+# column (t, orthonormality_error) or its width (position 3, quaternion_wxyz 4, velocities 3).
+# ``t`` is a column only when it is not ``sample_index * dt`` bit for bit (``dt`` null); the truth's
+# ``t`` only when it is not the run's.  A truth file ``truth__<12 hex>.npz`` beside the run's holds
+# ``layout`` ({"trajectory_format": 2, "kind": "truth", "columns": [...]}), ``sample_index`` (S,)
+# and ``samples``: the truth at the samples every run of its (case, dt) keeps (its stride and last
+# sample); its name is a hash of its content, so runs share it exactly when their truths agree there,
+# and a second writer writes the same bytes.  A file without ``layout`` is format 1 (every array
+# under its own name, the truth's with a ``truth_`` prefix); both read the same
+# (:func:`open_trajectory`).
+TRAJECTORY_FORMAT = 2
+READABLE_TRAJECTORY_FORMATS = (1, 2)  # trajectory file formats this freebody reads
+LAYOUT = "layout"
+TRUTH_FILE = re.compile(r"truth__[0-9a-f]{12}\.npz")  # a shared truth file's name (nothing else)
+ORTHONORMALITY = "orthonormality_error"
+_WIDTH = {"t": 0, "position": 3, "quaternion_wxyz": 4, "linear_velocity": 3, "angular_velocity": 3,
+          ORTHONORMALITY: 0}  # 0: a (K,) column; w: (K, w)
+_COLUMNS = (*_FIELDS, ORTHONORMALITY)
+
+
+def encode_block(block: np.ndarray) -> np.ndarray:
+    """A (K, C) float64 block as the uint8 array (8 K C,) a format-2 file stores, losslessly: each
+    row's bits XOR the previous row's (a smooth series leaves its sign, exponent and leading mantissa
+    bits zero), columns one after another, then the bytes shuffled (the first byte of every value,
+    then the second, ...), which deflate compresses 20-25% better than the raw values."""
+    u = np.ascontiguousarray(block, dtype="<f8").view("<u8")
+    d = u.copy()
+    d[1:] ^= u[:-1]
+    return np.ascontiguousarray(np.ascontiguousarray(d.T).view(np.uint8).reshape(-1, 8).T).reshape(-1)
+
+
+def decode_block(data: np.ndarray, rows: int, columns: int) -> np.ndarray:
+    """The (rows, columns) float64 block :func:`encode_block` made ``data`` of, bit for bit."""
+    d = np.ascontiguousarray(data.reshape(8, rows * columns).T).view("<u8").reshape(columns, rows).T
+    return np.bitwise_xor.accumulate(d, axis=0).view("<f8").astype(np.float64, copy=False)
+
+
+def _width(field: str) -> int:
+    return max(1, _WIDTH[field])
+
+
+def _block(arrays: list[np.ndarray], rows: int) -> np.ndarray:
+    return np.hstack([a.reshape(rows, -1) for a in arrays]) if arrays else np.zeros((rows, 0))
+
+
+def _split(block: np.ndarray, fields: list[str]) -> dict[str, np.ndarray]:
+    """A decoded block's columns as arrays by field ((K,) or (K, w), C-contiguous copies)."""
+    out, c = {}, 0
+    for f in fields:
+        w = _width(f)
+        part = block[:, c:c + w]
+        out[f] = np.ascontiguousarray(part[:, 0] if _WIDTH[f] == 0 else part)
+        c += w
+    return out
+
+
+def grid_times(index: np.ndarray, dt: float) -> np.ndarray:
+    """t (K,) s of samples at steps ``index`` on a fixed step ``dt``: ``index * dt``, the product
+    :meth:`Trajectory.on_grid` forms."""
+    return index * dt
+
+
+def _grid_dt(t: np.ndarray, index: np.ndarray) -> float | None:
+    """A step dt with ``grid_times(index, dt)`` equal to ``t`` bit for bit, or None."""
+    nonzero = np.flatnonzero(index)
+    if len(t) == 0:
+        return None
+    if len(nonzero) == 0:
+        candidates = [0.0]
+    else:
+        q = float(t[nonzero[-1]] / index[nonzero[-1]])
+        candidates = [q, float(np.nextafter(q, np.inf)), float(np.nextafter(q, -np.inf))]
+    for dt in candidates:
+        if np.isfinite(dt) and grid_times(index, dt).tobytes() == t.tobytes():
+            return dt
+    return None
+
+
+def shared_rows(index: np.ndarray) -> np.ndarray:
+    """Which of a run's saved samples (steps ``index``, ascending) its truth file holds: those on the
+    stride of its file (every k-th step, k the most frequent gap) and its last one, the samples
+    every run of its (case, dt) keeps; the maxima and divergence samples are the run's own."""
+    if len(index) < 2:
+        return np.ones(len(index), bool)
+    gaps, counts = np.unique(np.diff(index), return_counts=True)
+    every = int(gaps[np.argmax(counts)])
+    return (index % every == 0) | (index == index[-1])
+
+
+def _format2_arrays(tr: Trajectory, truth: Trajectory | None, index: np.ndarray) -> bool:
+    """Whether a run's samples fit format 2 (float64 fields of K rows at K ascending steps); a
+    trajectory built otherwise by hand is written in format 1, as it is."""
+    k = len(index)
+    if np.any(np.diff(index) <= 0):
+        return False
+    for x in (tr, truth):
+        if x is None:
+            continue
+        for f in _COLUMNS:
+            a = getattr(x, f)
+            shape = (k,) if _WIDTH[f] == 0 else (k, _WIDTH[f])
+            if a is not None and (not isinstance(a, np.ndarray) or a.dtype != np.float64 or a.shape != shape):
+                return False
+    return True
+
+
+def write_trajectory(path: Path, tr: Trajectory, truth: Trajectory | None, index: np.ndarray,
+                     trajectory_format: int = TRAJECTORY_FORMAT) -> None:
+    """Write a run's saved samples (from :func:`samples_to_save`) to ``path`` atomically, in format
+    :data:`TRAJECTORY_FORMAT` (its truth at the shared samples in a truth file beside it, written
+    once: see above), or in format 1 (one file, each array under its name, as earlier releases wrote
+    it) when ``trajectory_format`` is 1 or format 2 does not hold the arrays (:func:`_format2_arrays`)."""
+    path, index = Path(path), np.asarray(index, dtype=np.int64)
+    if trajectory_format not in READABLE_TRAJECTORY_FORMATS:
+        raise ValueError(f"trajectory format {trajectory_format}: freebody writes formats "
+                         f"{', '.join(map(str, READABLE_TRAJECTORY_FORMATS))}")
+    if trajectory_format == 1 or not _format2_arrays(tr, truth, index):
+        _write_format1(path, tr, truth, index)
+        return
+    dt = _grid_dt(tr.t, index)
+    fields = [f for f in _COLUMNS if getattr(tr, f) is not None and (f != "t" or dt is None)]
+    layout = {"trajectory_format": TRAJECTORY_FORMAT, "dt": dt, "columns": fields, "truth": None}
+    arrays = {"sample_index": index, "samples": encode_block(_block([getattr(tr, f) for f in fields], len(index)))}
+    if truth is not None:
+        layout["truth"], arrays["truth_extra"] = _share_truth(path.parent, tr, truth, index)
+    arrays[LAYOUT] = np.array(json.dumps(layout, sort_keys=True))
+    write_npz_atomic(path, arrays)
+
+
+def _share_truth(folder: Path, tr: Trajectory, truth: Trajectory, index: np.ndarray) -> tuple[dict, np.ndarray]:
+    """(the run's layout ``truth`` entry, its ``truth_extra`` member): the truth at the shared rows
+    (:func:`shared_rows`) goes to the truth file of that content in ``folder`` (written if it is not
+    there yet), the rest stays in the run's file."""
+    fields = [f for f in _FIELDS if f != "t" or truth.t.tobytes() != tr.t.tobytes()]
+    block = _block([getattr(truth, f) for f in fields], len(index))
+    rows = shared_rows(index)
+    name = _write_truth_file(folder, index[rows], block[rows], fields) if rows.any() else None
+    return {"file": name, "columns": fields}, encode_block(block[~rows])
+
+
+def _write_truth_file(folder: Path, index: np.ndarray, block: np.ndarray, fields: list[str]) -> str:
+    """The name of the truth file holding ``block`` (S, C) at the steps ``index`` (S,) in ``folder``,
+    written atomically unless it is there already (its name is a hash of its content)."""
+    layout = json.dumps({"trajectory_format": TRAJECTORY_FORMAT, "kind": "truth", "columns": fields},
+                        sort_keys=True)
+    digest = hashlib.sha256(b"\0".join([layout.encode(), index.tobytes(), block.tobytes()])).hexdigest()
+    name = f"truth__{digest[:12]}.npz"
+    if not os.path.isfile(folder / name) or os.path.islink(folder / name):
+        write_npz_atomic(folder / name, {LAYOUT: np.array(layout), "sample_index": index,
+                                         "samples": encode_block(block)})
+    return name
+
+
+def _write_format1(path: Path, tr: Trajectory, truth: Trajectory | None, index: np.ndarray) -> None:
+    """The format-1 file of a run: each array under its name, the truth's with a ``truth_`` prefix."""
     arrays = {f: getattr(tr, f) for f in _FIELDS}
-    arrays["sample_index"] = np.asarray(index, dtype=np.int64)
+    arrays["sample_index"] = index
     if tr.orthonormality_error is not None:
-        arrays["orthonormality_error"] = tr.orthonormality_error
+        arrays[ORTHONORMALITY] = tr.orthonormality_error
     if truth is not None:
         arrays.update({"truth_" + f: getattr(truth, f) for f in _FIELDS})
-    write_npz_atomic(Path(path), arrays)
+    write_npz_atomic(path, arrays)
 
 
 def load_trajectory(path: Path, limit: int | None = None) -> tuple[Trajectory, Trajectory | None]:
-    """(run trajectory, truth trajectory or None) from a trajectory file (a regular file, not a
-    symbolic link, of at most ``limit`` bytes, default TRAJECTORY_FILE_MAX_BYTES: :func:`open_npz`)."""
-    with open_npz(path, TRAJECTORY_FILE_MAX_BYTES if limit is None else limit) as z:
-        tr = Trajectory(*(z[f] for f in _FIELDS),
-                        orthonormality_error=z["orthonormality_error"] if "orthonormality_error" in z else None)
+    """(run trajectory, truth trajectory or None) from a trajectory file of either format (a regular
+    file, not a symbolic link, of at most ``limit`` bytes, default TRAJECTORY_FILE_MAX_BYTES:
+    :func:`open_trajectory`; a format-2 file's truth file is read from the same folder)."""
+    with open_trajectory(path, TRAJECTORY_FILE_MAX_BYTES if limit is None else limit) as z:
+        tr = Trajectory(*(z[f] for f in _FIELDS), orthonormality_error=z.get(ORTHONORMALITY))
         truth = Trajectory(*(z["truth_" + f] for f in _FIELDS)) if "truth_t" in z else None
     return tr, truth
 
@@ -249,10 +419,11 @@ def load_trajectory(path: Path, limit: int | None = None) -> tuple[Trajectory, T
 # /dev/zero.  Any other is the run's missing trajectory, with a warning (:func:`usable_trajectories`).
 #
 # A trajectory file's bytes per saved sample: at most 16 arrays of float64 / int64 values (run: t 1,
-# position 3, quaternion 4, velocities 3 + 3, orthonormality 1, sample_index 1; truth: 14) = 30 x 8.
+# position 3, quaternion 4, velocities 3 + 3, orthonormality 1, sample_index 1; truth: 14) = 30 x 8
+# (format 1; a format-2 run file or truth file holds fewer, and each is held to the same bound).
 TRAJECTORY_BYTES_PER_SAMPLE = 30 * 8
 # What a trajectory file holds besides its samples: the zip's directory and a .npy header per array
-# (16 arrays of ~200 bytes), with room to spare.
+# (16 arrays of ~200 bytes; format 2's layout text, ~1.5 KB), with room to spare.
 TRAJECTORY_FIXED_BYTES = 64 * 1024
 # At most, whatever a run's steps say (and for a run that does not say): 2 GiB is a run of 8.9
 # million steps saved at every step (--save-every 1); the default keeps ~800 samples (~200 KB).
@@ -309,13 +480,201 @@ def open_npz(path: Path, limit: int, what: str | None = None):
             yield z
 
 
+class TrajectoryArrays(Mapping):
+    """An open trajectory file's arrays under their format-1 names, whatever its format: ``t`` (K,)
+    s, ``position`` (K, 3) m, ``quaternion_wxyz`` (K, 4), ``linear_velocity`` (K, 3) m/s,
+    ``angular_velocity`` (K, 3) rad/s (world frame, canonical convention), ``sample_index`` (K,)
+    int64 (files of earlier releases may lack it), ``orthonormality_error`` (K,) (matrix
+    integrators), and the truth's at the same samples ``truth_t`` ... ``truth_angular_velocity``.
+    A missing array is a KeyError, as in an npz file.  ``format``: the file's format number."""
+
+    format = 1
+
+    def __init__(self, z):
+        self._z = z
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._z[name]
+
+    def __iter__(self):
+        return iter(self._z.files)
+
+    def __len__(self) -> int:
+        return len(self._z.files)
+
+    @property
+    def files(self) -> list[str]:
+        return list(self)
+
+    def truth_key(self) -> tuple | None:
+        """A key equal for two files exactly when their truth arrays are (CRC-32 and sizes of what
+        holds them), so that a reader reduces each distinct truth once; None without a truth."""
+        try:
+            return tuple((i.CRC, i.file_size) for i in (self._z.zip.getinfo(f"truth_{f}.npy") for f in _FIELDS))
+        except KeyError:
+            return None
+
+
+class _Format2(TrajectoryArrays):
+    """A format-2 run file (see :data:`TRAJECTORY_FORMAT`); its truth file is opened by
+    ``open_truth(name)`` (a context manager yielding the open npz) when a truth array is first read."""
+
+    format = 2
+
+    def __init__(self, z, layout: dict, what: str, open_truth):
+        super().__init__(z)
+        self._layout, self._what, self._open_truth = layout, what, open_truth
+        self._index = _member(z, "sample_index", what, np.int64)
+        k = len(self._index)
+        run = _split(_decoded(z, "samples", k, layout["columns"], what), layout["columns"])
+        if "t" not in run:
+            run["t"] = grid_times(self._index, layout["dt"])
+        self._arrays, self._truth = {"sample_index": self._index, **run}, None
+        truth = layout["truth"]
+        self._names = [*self._arrays] + ([f"truth_{f}" for f in _FIELDS] if truth is not None else [])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name.startswith("truth_") and name in self._names:
+            if self._truth is None:
+                self._truth = self._read_truth()
+            return self._truth[name]
+        return self._arrays[name]
+
+    def __iter__(self):
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
+
+    def truth_key(self) -> tuple | None:
+        if self._layout["truth"] is None:
+            return None
+        z = self._z.zip
+        members = ["sample_index", "truth_extra"] + (["samples"] if "t" in self._layout["columns"] else [])
+        return (2, json.dumps(self._layout, sort_keys=True),
+                *((i.CRC, i.file_size) for i in (z.getinfo(m + ".npy") for m in members)))
+
+    def _read_truth(self) -> dict[str, np.ndarray]:
+        """The truth's arrays at the run's samples: the truth file's rows at the samples it holds,
+        the run file's ``truth_extra`` rows at the others."""
+        entry, index = self._layout["truth"], self._index
+        fields = entry["columns"]
+        block = np.empty((len(index), sum(_width(f) for f in fields)))
+        mine = np.ones(len(index), bool)
+        if entry["file"] is not None:
+            with self._open_truth(entry["file"]) as t:
+                shared, shared_index = _truth_file_block(t, fields, f"truth file {entry['file']}")
+            pos = np.searchsorted(shared_index, index)
+            pos[pos == len(shared_index)] = 0
+            mine = shared_index[pos] != index if len(shared_index) else mine
+            block[~mine] = shared[pos[~mine]]
+        block[mine] = _decoded(self._z, "truth_extra", int(mine.sum()), fields, self._what)
+        out = {f"truth_{f}": a for f, a in _split(block, fields).items()}
+        out.setdefault("truth_t", self._arrays["t"].copy())
+        return out
+
+
+def _member(z, name: str, what: str, dtype) -> np.ndarray:
+    """Member ``name`` of an open npz ``z``, a 1-D array of ``dtype``; FileRefused otherwise."""
+    try:
+        a = z[name]
+    except KeyError:
+        raise FileRefused(what, f"not a trajectory file (no {name})") from None
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # a damaged member
+        raise FileRefused(what, f"not a trajectory file ({name}: {type(e).__name__})") from None
+    if a.ndim != 1 or a.dtype != dtype:
+        raise FileRefused(what, f"not a trajectory file ({name} is {a.dtype} {a.shape})")
+    return a
+
+
+def _decoded(z, name: str, rows: int, fields: list[str], what: str) -> np.ndarray:
+    """The (rows, C) float64 block stored as member ``name`` (:func:`decode_block`)."""
+    data = _member(z, name, what, np.uint8)
+    columns = sum(_width(f) for f in fields)
+    if len(data) != 8 * rows * columns:
+        raise FileRefused(what, f"not a trajectory file ({name} holds {len(data)} bytes, not "
+                                f"{rows} x {columns} values)")
+    return decode_block(data, rows, columns)
+
+
+def _truth_file_block(z, fields: list[str], what: str) -> tuple[np.ndarray, np.ndarray]:
+    """(block (S, C), steps (S,)) of an open truth file whose columns are ``fields``."""
+    layout = _layout(z, what)
+    if layout.get("kind") != "truth" or layout.get("columns") != fields:
+        raise FileRefused(what, "not the truth file its run names (its columns differ)")
+    index = _member(z, "sample_index", what, np.int64)
+    if np.any(np.diff(index) <= 0):
+        raise FileRefused(what, "not a truth file (its samples are not ascending)")
+    return _decoded(z, "samples", len(index), fields, what), index
+
+
+def _layout(z, what: str) -> dict:
+    """The ``layout`` of an open format-2 file, checked: FileRefused for a newer or unknown format."""
+    try:
+        layout = json.loads(str(z[LAYOUT][()]))
+    except (ValueError, TypeError, IndexError) as e:
+        raise FileRefused(what, f"not a trajectory file (its layout: {type(e).__name__})") from None
+    version = layout.get("trajectory_format") if isinstance(layout, dict) else None
+    if version not in READABLE_TRAJECTORY_FORMATS:
+        raise FileRefused(what, f"trajectory format {printable(str(version))}: this freebody reads formats "
+                                f"{', '.join(map(str, READABLE_TRAJECTORY_FORMATS))}; read it with the freebody "
+                                f"that wrote it, or re-run the suite")
+    columns = layout.get("columns")
+    if not isinstance(columns, list) or any(c not in _WIDTH for c in columns):
+        raise FileRefused(what, "not a trajectory file (unknown columns in its layout)")
+    return layout
+
+
+def _run_layout(z, what: str) -> dict:
+    """A format-2 run file's layout, checked (:func:`_layout`, then its dt and truth entry)."""
+    layout = _layout(z, what)
+    dt, truth = layout.get("dt"), layout.get("truth")
+    columns = layout["columns"]
+    if any(f not in columns for f in _FIELDS[1:]) or (dt is None) != ("t" in columns) or not (
+            dt is None or isinstance(dt, (int, float))):
+        raise FileRefused(what, "not a trajectory file (its layout lacks a field or its step)")
+    if truth is not None and not (isinstance(truth, dict) and isinstance(truth.get("columns"), list)
+                                  and all(f in _FIELDS for f in truth["columns"])
+                                  and all(f in truth["columns"] for f in _FIELDS[1:])
+                                  and (truth.get("file") is None or (isinstance(truth["file"], str)
+                                                                     and TRUTH_FILE.fullmatch(truth["file"])))):
+        raise FileRefused(what, "not a trajectory file (its truth entry)")
+    return layout
+
+
+@contextmanager
+def open_trajectory(path: Path, limit: int, what: str | None = None, truth_path=None):
+    """A trajectory file (either format) opened as :class:`TrajectoryArrays`, through
+    :func:`open_npz` (a regular file, not a symbolic link, of at most ``limit`` bytes); a format-2
+    file's truth file, ``truth_path(name)`` (default: beside ``path``), is opened the same way
+    when a truth array is first read.  FileRefused for anything else."""
+    what = what or printable(str(path))
+    locate = truth_path or (lambda name: Path(path).parent / name)
+
+    @contextmanager
+    def open_truth(name: str):
+        with open_npz(locate(name), limit, f"{what}: its truth file {name}") as t:
+            yield t
+
+    with open_npz(path, limit, what) as z:
+        if LAYOUT not in z.files:
+            yield TrajectoryArrays(z)
+        else:
+            yield _Format2(z, _run_layout(z, what), what, open_truth)
+
+
 @contextmanager
 def open_run_trajectory(folder: Path, run: dict):
-    """A run's trajectory file in the results folder ``folder``, opened (:func:`open_npz`) when it
-    is a regular file inside the folder (:func:`trajectory_path`) of at most
-    :func:`trajectory_max_bytes`; else FileRefused (its ``reason`` says why)."""
-    path = trajectory_path(folder, run["trajectory"])
-    with open_npz(path, trajectory_max_bytes(run), f"trajectory {printable(str(run['trajectory']))}") as z:
+    """A run's trajectory file in the results folder ``folder``, opened as
+    :class:`TrajectoryArrays` (:func:`open_trajectory`) when it is a regular file inside the folder
+    (:func:`trajectory_path`) of at most :func:`trajectory_max_bytes`, and so is its truth file
+    (format 2: beside it, as ``run["trajectory"]`` names it); else FileRefused (its ``reason`` says
+    why)."""
+    rel = run["trajectory"]
+    path = trajectory_path(folder, rel)
+    beside = PurePosixPath(rel).parent
+    with open_trajectory(path, trajectory_max_bytes(run), f"trajectory {printable(str(rel))}",
+                         lambda name: trajectory_path(folder, str(beside / name))) as z:
         yield z
 
 
