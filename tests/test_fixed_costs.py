@@ -353,3 +353,23 @@ def test_the_file_lock_waits_for_another_process_and_says_so(tmp_path):
     with file_lock(lock, waiting=lambda: told.append(2)):
         pass
     assert told == [1]
+
+
+@pytest.mark.skipif(not base.is_available("mujoco"), reason="mujoco not installed")
+@pytest.mark.parametrize("user_setting, expected", [(None, "disable"), ("glfw", "glfw")])
+def test_a_worker_imports_mujoco_without_its_opengl_back_end(user_setting, expected):
+    """A worker's MuJoCo is imported with MUJOCO_GL=disable (EngineEntry.worker_env: no glfw, which
+    no run needs), unless the user's environment sets MUJOCO_GL: theirs is kept."""
+    import os
+
+    code = ("import os, sys\nfrom freebody.run.worker import preimport\npreimport(['mujoco'])\n"
+            "print(os.environ.get('MUJOCO_GL'), 'mujoco' in sys.modules, 'glfw' in sys.modules)\n")
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL"}
+    if user_setting is not None:
+        env["MUJOCO_GL"] = user_setting
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert r.returncode == 0, r.stderr
+    gl, imported, glfw = r.stdout.split()
+    assert (gl, imported) == (expected, "True")
+    if user_setting is None:
+        assert glfw == "False"

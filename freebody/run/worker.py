@@ -169,11 +169,18 @@ class Runner:
 
 def preimport(engines) -> None:
     """Import the adapters of the available engines among ``engines`` (their import banners are
-    discarded), as the parent did while expanding the runs: so that a run's captured engine output
-    does not depend on whether it was the first run of its engine in its process."""
-    from ..adapters.base import is_available, load_adapter
+    discarded), so that a run's captured engine output does not depend on whether it was the
+    first run of its engine in its process.  Each engine's ``EngineEntry.worker_env`` is set first
+    where the environment does not set it (MuJoCo's import without an OpenGL back-end)."""
+    from ..adapters.base import UnknownEngine, is_available, load_adapter, registry_entry
     from ..adapters.capture import capture_output
 
+    for name in engines:
+        try:
+            for var, value in registry_entry(name).worker_env:
+                os.environ.setdefault(var, value)
+        except UnknownEngine:  # the run records it
+            pass
     for name in engines:
         try:
             if is_available(name):
