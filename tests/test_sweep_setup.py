@@ -1,9 +1,17 @@
 """The per-map-run set-up a sweep's identification pays 135 times a body (27 candidate maps x the
-run and its four perturbed starts), made cheaper without changing a bit."""
+run and its four perturbed starts), made cheaper without changing a bit; and the sweep's start-up:
+what its parent imports before the workers start, and what the workers wait for."""
 import dataclasses
+import json
+import os
+import subprocess
+import sys
 
 import numpy as np
+import pytest
 
+from freebody.adapters import base
+from freebody.envs.facts import FACTS_DIR_VARIABLE
 from freebody.reference_impl.compiled import mat, vec
 from freebody.reference_impl.problem import Body
 from freebody.reference_impl.rotations import matrix_from_quat
@@ -32,3 +40,64 @@ def test_vec_and_mat_give_python_floats():
     assert mat(a) == tuple(tuple(float(v) for v in row) for row in a)
     assert vec(np.float32([0.1, 2.0, 3.0])) == tuple(float(v) for v in np.float32([0.1, 2.0, 3.0]))
     assert all(type(v) is float for v in vec(a[0]))
+
+
+# --- start-up: what the parent imports, what the workers wait for ---------------------------------
+
+_BATCH_CLASSES = """
+import json, sys
+from freebody.envs.facts import engine_facts
+from freebody.tools.sweep import _batch_classes
+assert engine_facts("mujoco") is not None  # from the cache file the first process wrote
+print(json.dumps([sorted(_batch_classes(["mujoco"], progress=True)), "mujoco" in sys.modules]))
+"""
+
+
+@pytest.mark.skipif(not base.is_available("mujoco"), reason="mujoco not installed")
+def test_the_parent_of_a_mujoco_sweep_does_not_import_mujoco(tmp_path):
+    """With MuJoCo's facts cached, the sweep's parent learns that MuJoCo steps no batch from them
+    and leaves its import to the workers (``supports_batch`` in the facts; the parent imported
+    MuJoCo, ~0.2 s CPU, before the workers started)."""
+    env = {**os.environ, FACTS_DIR_VARIABLE: str(tmp_path)}
+    for _ in range(2):  # the first process asks the adapter and writes the facts; the second reads them
+        r = subprocess.run([sys.executable, "-c", _BATCH_CLASSES], capture_output=True, text=True,
+                           timeout=300, env=env)
+        assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout.strip().splitlines()[-1]) == [[], False]
+
+
+_LOAD_CACHED = """
+import sys
+sys.path.insert(0, sys.argv[1])
+from freebody.reference_impl.compiled_lock import serialize_if_asked
+serialize_if_asked()  # the lock named by the environment, as compiled.py's import installs it
+import tinymap
+tinymap.twice(1.5)
+s = tinymap.twice.stats
+print(sum(s.cache_misses.values()), sum(s.cache_hits.values()))
+"""
+
+
+def test_a_function_in_the_disk_cache_is_loaded_without_the_compile_lock(tmp_path):
+    """A worker of a pool loads a compiled map that numba's disk cache holds without waiting for the
+    pool's compile lock (held here by another process for the whole load): two workers starting
+    together load their maps side by side, not one after the other.  A miss still waits for the
+    lock (test_fixed_costs: two processes compile a function once)."""
+    import fcntl
+
+    from freebody.reference_impl.compiled_lock import COMPILE_LOCK_ENV
+
+    (tmp_path / "tinymap.py").write_text("from numba import njit\n\n@njit(cache=True)\n"
+                                         "def twice(x):\n    return 2.0 * x\n")
+    lock = tmp_path / "compile.lock"
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), COMPILE_LOCK_ENV: str(lock)}
+    child = [sys.executable, "-c", _LOAD_CACHED, str(tmp_path)]
+    first = subprocess.run(child, capture_output=True, text=True, timeout=300, env=env)
+    assert first.returncode == 0 and first.stdout.split() == ["1", "0"], first.stderr  # compiled, cached
+    with open(lock, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX)  # another worker compiling something else
+        try:
+            second = subprocess.run(child, capture_output=True, text=True, timeout=60, env=env)
+        except subprocess.TimeoutExpired:
+            pytest.fail("a cached function's load waited for the compile lock")
+    assert second.returncode == 0 and second.stdout.split() == ["0", "1"], second.stderr  # loaded

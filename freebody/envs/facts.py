@@ -3,7 +3,8 @@ process of ``freebody run`` need not import the engine to ask.
 
 Expanding the run matrix and writing results.json read, for each selected engine, its version, the
 integrators and precisions it offers, its opt-in integrators, its old integrator names, its
-conventions and whether it steps runs together.  Those answers are the adapter class's, and asking
+conventions and whether it steps runs together (``freebody sweep``: whether it steps bodies as a
+batch).  Those answers are the adapter class's, and asking
 the class means importing the engine (JAX, Drake, SAPIEN: seconds between them).  They are static
 for one installed engine, so :func:`engine_facts` keeps them in a small JSON file per engine under
 :func:`facts_dir` (``$FREEBODY_ENGINE_FACTS_DIR``, else ``$XDG_CACHE_HOME/freebody/engine-facts``,
@@ -37,7 +38,7 @@ from pathlib import Path
 
 FACTS_DIR_VARIABLE = "FREEBODY_ENGINE_FACTS_DIR"
 # The fields of a facts file; a change of their meaning bumps it (older files are then misses).
-FACTS_FORMAT = 1
+FACTS_FORMAT = 2  # 2: supports_batch (freebody sweep's batches)
 _BUILT_IN_PREFIX = "freebody.adapters."
 _memo: dict[tuple, dict | None] = {}  # fingerprint -> facts, this process
 
@@ -59,15 +60,15 @@ def convention_rows(cls) -> list[list[str]]:
 def facts_of(cls) -> dict:
     """The answers of an adapter class: ``version``, ``integrators`` (offered, default first),
     ``opt_in``, ``precisions``, ``aliases`` (old -> current), ``conventions``
-    (:func:`convention_rows`), ``steps_runs_together`` and ``unsupported`` (why this adapter cannot
-    drive the installed version, or None)."""
+    (:func:`convention_rows`), ``steps_runs_together``, ``supports_batch`` and ``unsupported``
+    (why this adapter cannot drive the installed version, or None)."""
     from ..adapters.base import unsupported_version
 
     version = str(cls.engine_version())
     return {"version": version, "integrators": list(cls.offered_integrators()),
             "opt_in": list(cls.opt_in_integrators), "precisions": list(cls.precisions),
             "aliases": dict(cls.integrator_aliases), "conventions": convention_rows(cls),
-            "steps_runs_together": bool(cls.steps_runs_together),
+            "steps_runs_together": bool(cls.steps_runs_together), "supports_batch": bool(cls.supports_batch),
             "unsupported": unsupported_version(cls, version)}
 
 

@@ -120,21 +120,13 @@ def _mat(a) -> str:
     return "[" + ", ".join(_vec(row) for row in np.asarray(a, dtype=float)) + "]"
 
 
+_TOML_ESCAPED = re.compile(r'["\\\x00-\x1f\x7f]')  # quote, backslash, the control characters TOML forbids
+_TOML_ESCAPES = {'"': '\\"', "\\": "\\\\", "\n": "\\n", "\t": "\\t"}
+
+
 def _str(s: str) -> str:
     """A TOML basic string (escapes quote, backslash and the control characters TOML forbids)."""
-    out = []
-    for ch in s:
-        if ch in '"\\':
-            out.append("\\" + ch)
-        elif ch == "\n":
-            out.append("\\n")
-        elif ch == "\t":
-            out.append("\\t")
-        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
-            out.append(f"\\u{ord(ch):04X}")
-        else:
-            out.append(ch)
-    return '"' + "".join(out) + '"'
+    return '"' + _TOML_ESCAPED.sub(lambda m: _TOML_ESCAPES.get(m[0]) or f"\\u{ord(m[0]):04X}", s) + '"'
 
 
 def dump_case(problem: Problem) -> str:
@@ -318,13 +310,19 @@ def _batch_classes(engines, progress: bool) -> dict[str, type]:
     batch (``supports_batch``).  An engine that is missing is left out, and so is one whose
     adapter fails to load: its runs go one by one and record their own skip or failure.  So does an
     engine that runs in an isolated environment (a version named on the command line): batches
-    are stepped in this process, which holds another version of it."""
+    are stepped in this process, which holds another version of it.  The engine's cached facts
+    (:mod:`freebody.envs.facts`) are asked first, so an engine that cannot batch is not imported
+    here (MuJoCo's import, and the version probe of its GLFW, cost this process ~0.2 s CPU)."""
     from ..envs.engines import isolated
+    from ..envs.facts import engine_facts
 
     out = {}
     for engine in dict.fromkeys(engines):
         try:
             if isolated(engine) or not is_available(engine):
+                continue
+            facts = engine_facts(engine)
+            if facts is not None and not facts["supports_batch"]:
                 continue
             with capture_output():  # some engines print a banner on import (pybullet)
                 cls = load_adapter(engine)
