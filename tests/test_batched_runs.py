@@ -116,3 +116,56 @@ def test_what_is_not_batched(monkeypatch):
     monkeypatch.setattr(batching, "step_together", refuse)
     monkeypatch.setattr(suite, "_execute_tasks", lambda *a, **k: None)
     suite.run_specs(specs, None, ["mjx", "mujoco"], progress=False, timeout=30.0)
+
+
+def test_background_steps_in_a_thread_what_step_together_steps():
+    """batching.Background (freebody run --jobs N > 1) steps the same runs in a thread: each
+    planned task of a chosen run waits at its gate until its group is stepped, then carries the
+    Simulated step_together gives it, bit for bit; the other engines' tasks have no gate."""
+    from freebody.run.executor import plan
+
+    problems = [_problem(k, duration=0.03) for k in range(3)]
+    specs = expand(problems, ["mjx", "mujoco"], ["Euler"], [0.01, 0.005], None, ["float64"])
+    mjx = {i for i, s in enumerate(specs) if s.engine == "mjx"}
+    notes = []
+    stepping = batching.Background(specs, note=notes.append)
+    tasks = plan(specs)
+    stepping.gate(tasks)
+    assert {t.index for t in tasks if t.ready is not None} == mjx
+    stepping.thread.join(120)
+    assert not stepping.running()
+    everything = set(range(len(specs)))
+    assert all(t.can_start(everything, everything) for t in tasks)  # gates lifted
+    assert all(t.ready is None for t in tasks) and len(notes) == 1  # the note, on this thread
+    together = batching.step_together(specs)
+    assert sorted(together) == sorted(mjx)
+    for t in tasks:
+        if t.index in mjx:
+            assert _same(t.run.simulated[0].trajectory, together[t.index][0].trajectory), t.index
+        else:
+            assert t.run.simulated is None
+
+
+def test_the_pool_leaves_a_slot_to_the_stepping(monkeypatch):
+    """While this process steps runs (slot_taken), a pool of N starts N - 1 workers; the N-th once
+    the stepping ends."""
+    from freebody.run import executor
+
+    class FakeWorker:
+        def __init__(self, options, python=None):
+            self.python, self.task, self.ready = python, None, True
+
+    monkeypatch.setattr(executor, "Worker", FakeWorker)
+    stepping = [True]
+    pool = executor.LocalPool(2, slot_taken=lambda: stepping[0])
+    try:
+        tasks = executor.plan(expand([_problem(k) for k in range(3)], ["mujoco"], ["Euler"], [0.01],
+                                     None, ["float64"]))
+        pool._staff(tasks, set(), set())
+        assert len(pool.workers) == 1
+        stepping[0] = False
+        pool._staff(tasks, set(), set())
+        assert len(pool.workers) == 2
+    finally:
+        pool.workers = []
+        pool.close()

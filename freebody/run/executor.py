@@ -45,6 +45,7 @@ from .worker import RunTask, Runner, failed_payload
 REFERENCE_STEP_WEIGHT = 20
 WORKER_START_ATTEMPTS = 3  # consecutive failures to start a worker before giving up
 KILL_WAIT_S = 5.0  # how long to wait for a killed worker to be reaped
+SLOT_POLL_S = 0.1  # LocalPool: how often to look for released runs while this process works in a slot
 
 OnDone = Callable[[int, dict], None]  # (index of the run in the caller's specs, payload)
 
@@ -58,12 +59,15 @@ class Task:
         truth exists (None: this run computes it).
     deps : indices of runs that must finish first (reference runs whose trajectories this run's
         scheme identification reuses).
+    ready : None, or whether the run may start yet (a run being stepped in this process meanwhile:
+        :class:`freebody.run.batching.Background`, which may replace ``run`` when it says yes).
     """
 
     run: RunTask
     group: tuple
     deps: frozenset = field(default_factory=frozenset)
     truth_of: int | None = None
+    ready: Callable[[], bool] | None = None
 
     @property
     def index(self) -> int:
@@ -71,7 +75,8 @@ class Task:
 
     def can_start(self, finished: set[int], has_truth: set[int]) -> bool:
         """Whether its dependencies have finished and its group's truth exists."""
-        return self.deps <= finished and (self.truth_of is None or self.truth_of in has_truth)
+        return (self.deps <= finished and (self.truth_of is None or self.truth_of in has_truth)
+                and (self.ready is None or self.ready()))
 
 
 def _needed_references(spec: RunSpec) -> tuple[str, ...]:
@@ -226,6 +231,9 @@ class LocalPool:
         cost more to write, a millisecond each, than most of the runs they would serve).
     registry : the adapter registry the workers use (default: this process's,
         :data:`freebody.adapters.base.ENGINES`, so an engine registered at run time works there too).
+    slot_taken : None, or whether this process itself works in one of the ``jobs`` slots now
+        (:class:`freebody.run.batching.Background` stepping runs): meanwhile one worker fewer is
+        started, and the pool looks every ``SLOT_POLL_S`` for the runs that work releases.
     interpreters : engine -> the Python interpreter of its isolated environment
         (:mod:`freebody.envs.engines`): its runs go only to workers running that interpreter; the others to
         workers of this one.  With several interpreters the ``jobs`` workers are shared: an idle
@@ -233,11 +241,13 @@ class LocalPool:
     """
 
     def __init__(self, jobs: int, timeout: float | None = None, engines=(), share_truths: bool = True,
-                 registry: dict | None = None, interpreters: dict[str, str] | None = None):
+                 registry: dict | None = None, interpreters: dict[str, str] | None = None,
+                 slot_taken: Callable[[], bool] | None = None):
         from ..adapters import base
 
         self.interpreters = dict(interpreters or {})
         self.jobs = max(1, int(jobs))
+        self.slot_taken = slot_taken  # while it says True, this process works in one of the slots
         self.timeout = timeout
         self.workers: list[Worker] = []
         # one worker (of this interpreter; with other interpreters workers are swapped) runs a
@@ -318,6 +328,8 @@ class LocalPool:
         if self.timeout is not None and busy:
             now = time.monotonic()
             wait_s = max(0.0, min(w.started_at + self.timeout for w in busy) - now)
+        if self.slot_taken is not None and self.slot_taken():  # runs may be released meanwhile
+            wait_s = SLOT_POLL_S if wait_s is None else min(wait_s, SLOT_POLL_S)
         for conn in wait([w.from_worker for w in self.workers], wait_s):
             w = next(w for w in self.workers if w.from_worker is conn)
             try:
@@ -382,7 +394,8 @@ class LocalPool:
         for w in self.workers:
             if w.task is not None:
                 left[w.python] = left.get(w.python, 0) + 1
-        if len(self.workers) >= self.jobs and not any(w.task is None and not w.ready for w in self.workers):
+        jobs = self.jobs - 1 if self.jobs > 1 and self.slot_taken is not None and self.slot_taken() else self.jobs
+        if len(self.workers) >= jobs and not any(w.task is None and not w.ready for w in self.workers):
             staffed = {w.python for w in self.workers}
             starved = [py for py in ready if py not in staffed]
             idle = [w for w in self.workers if w.ready and w.task is None and w.python not in ready]
@@ -390,7 +403,7 @@ class LocalPool:
                 w = idle.pop()
                 self.workers.remove(w)
                 w.stop()
-        while len(self.workers) < min(self.jobs, sum(left.values())):
+        while len(self.workers) < min(jobs, sum(left.values())):
             if self._start_failures >= WORKER_START_ATTEMPTS:
                 return
             count: dict[str | None, int] = {}

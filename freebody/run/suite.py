@@ -77,8 +77,9 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
     simulated : spec index -> (Simulated, the engine it ports or None) for runs already stepped
         (``freebody sweep``'s batches): only judged, with the truths and reference maps of their group.
         None (the default): with the local executor and no ``timeout``, the runs of engines that
-        step runs together bit for bit as alone (MJX) are stepped so first, in this process
-        (:mod:`freebody.run.batching`), then judged in the workers: the same results, less time.
+        step runs together bit for bit as alone (MJX) are stepped so in this process
+        (:mod:`freebody.run.batching`): first, or with ``jobs`` > 1 in a thread beside ``jobs`` - 1
+        workers, then judged in the workers: the same results, less time.
 
     Returns (the results.json document, the RunOutputs in spec order); ``on_result`` is called
     with each RunOutput as it finishes.  The numbers do not depend on ``jobs`` or ``executor``.
@@ -105,17 +106,25 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
         folder = OutputFolder(out_path) if out_path is not None else None
         finished = _Finished(folder, versions, bar, on_result, engine_conventions(engines))
         try:
+            stepping = None
             if simulated is None and local and timeout is None:  # a time limit needs a run alone
-                from .batching import step_together
+                from . import batching
 
-                simulated = step_together(specs, note=bar.note, on_steps=bar.steps)  # runs alone's numbers
+                if isolate and jobs > 1:  # stepped here in one of the slots, beside the workers
+                    stepping = batching.Background(specs, note=bar.note)
+                    stack.callback(stepping.close)
+                else:
+                    simulated = batching.step_together(specs, note=bar.note, on_steps=bar.steps)
             tasks = plan(specs, simulated=simulated,
                          save_dir=str(folder.trajectory_dir) if folder is not None and local else None,
                          save_every=save_every, ship_saved=folder is not None and not local,
                          keep_arrays=keep_arrays)
+            if stepping is not None:
+                stepping.gate(tasks)  # each stepped run's task waits for its Simulated
             _execute_tasks(tasks, finished.add, executor=executor, jobs=jobs, timeout=timeout,
                            scheduler=scheduler, engines=engines, isolate=isolate,
-                           on_steps=lambda i, done, total: bar.steps(done, total, _label(specs[i])))
+                           on_steps=lambda i, done, total: bar.steps(done, total, _label(specs[i])),
+                           slot_taken=None if stepping is None else stepping.running)
         except KeyboardInterrupt as e:
             with _interrupts_deferred():
                 finished.interrupted(e)
@@ -245,11 +254,13 @@ def _label(spec: RunSpec) -> str:
 
 def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executor: str, jobs: int,
                    timeout: float | None, scheduler: str | None, engines: list[str],
-                   isolate: bool = True, on_steps: Callable[[int, int, int], None] | None = None) -> None:
+                   isolate: bool = True, on_steps: Callable[[int, int, int], None] | None = None,
+                   slot_taken: Callable[[], bool] | None = None) -> None:
     """Execute the planned tasks, calling ``on_done(index, payload)`` as each finishes: in local
     worker processes (``jobs`` of them, one for ``jobs=1``), on a dask cluster, or in this process
     (``isolate=False``).  ``on_steps(index, done, total)``: a long run's steps so far (local
-    workers and this process; not dask's workers)."""
+    workers and this process; not dask's workers).  ``slot_taken``: the local pool's (this process
+    steps runs in one of the ``jobs`` slots while it says True)."""
     from .executor import LocalPool, run_serial
 
     if executor == "dask":
@@ -262,7 +273,7 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
         from ..envs.engines import interpreters
 
         pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines,
-                         interpreters=interpreters(engines))
+                         interpreters=interpreters(engines), slot_taken=slot_taken)
         try:
             pool.run(tasks, on_done, on_steps)
         finally:
