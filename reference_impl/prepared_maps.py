@@ -31,7 +31,7 @@ from .problem import Problem
 from .rotations import matrix_from_quat, quat_conjugate, quat_from_rotvec, quat_multiply
 from .sampling import LOAD_SAMPLING_PER_STAGE, check_load_sampling
 
-__all__ = ["MapStart", "map_start", "run_map", "map_orientations"]
+__all__ = ["MapStart", "map_start", "run_map", "map_orientations", "frame_of"]
 
 MATRIX_INTEGRATORS = ("euler-matrix", "euler-matrix-gs")  # run_euler_matrix: R as a matrix, its orthonormality
 RK4_BODY_MAPS = ("rkmk4-body", "rk4-body-exp")  # MuJoCo's RK4 (run_mujoco_rk4), Munthe-Kaas first
@@ -74,6 +74,15 @@ class MapStart:
 
         M, I_b, I_inv, x, q, v, w, g = self.given
         return vec(x), vec(q), vec(v), vec(w), mat(I_b), mat(I_inv), vec(g)
+
+    @functools.cached_property
+    def given_w_body(self) -> tuple:
+        """R(q0)^T w0 of :attr:`given` as a tuple: the body-frame angular velocity (rad/s) the maps
+        that carry it start from (MuJoCo's RK4, Brax's generalized)."""
+        from .compiled import vec
+
+        M, I_b, I_inv, x, q, v, w, g = self.given
+        return vec(matrix_from_quat(q).T @ w)
 
 
 def map_start(problem: Problem, dt: float, loads: tuple | None = None) -> MapStart:
@@ -145,7 +154,7 @@ def _run_reference(start: MapStart, name: str, steps: int, rows: tuple, ortho) -
         if name == "symplectic-splitting":
             from .splitting import principal_frame
 
-            frame = principal_frame(I_b)
+            frame = frame_of(principal_frame, I_b)
             C.run_splitting(tx, tq, tp, tL, dt, steps, M, C.mat(frame.axes), C.vec(frame.moments), tI_inv,
                             tg, loads, *rows)
         else:
@@ -163,10 +172,10 @@ def _run_engine_map(start: MapStart, name: str, steps: int, per_stage: bool, row
     rows[0][0], rows[1][0], rows[2][0], rows[3][0] = x, q, v, w
     if name in RK4_BODY_MAPS:
         rkmk = name == "rkmk4-body"
-        E.run_mujoco_rk4(tx, tq, tv, vec(matrix_from_quat(q).T @ w), dt, steps, M, tI_b, tI_inv, tg, loads,
+        E.run_mujoco_rk4(tx, tq, tv, start.given_w_body, dt, steps, M, tI_b, tI_inv, tg, loads,
                          rkmk, rkmk, per_stage, *rows)
     elif name == "explicit-gyro-rescaled-momentum":
-        moments, V, q_V = physx_principal_frame(I_b)
+        moments, V, q_V = frame_of(physx_principal_frame, I_b)
         E.run_physx(tx, vec(quat_multiply(q, q_V)), tv, tw, dt, steps, M, vec(moments), mat(V.T),
                     vec(quat_conjugate(q_V)), tg, loads, *rows)
     elif name == DRAKE_SEMI_IMPLICIT or name in DRAKE_TABLEAUS:
@@ -177,10 +186,10 @@ def _run_engine_map(start: MapStart, name: str, steps: int, per_stage: bool, row
         E.run_newton(NEWTON_KINDS[name], tx, tq, tv, tw, dt, steps, M, tI_b, tI_inv, tg, loads, *rows)
     elif name in E.BRAX_MAPS:
         kind = E.BRAX_MAPS.index(name)
-        w0 = vec(matrix_from_quat(q).T @ w) if kind == 0 else tw  # generalized carries the body-frame w
+        w0 = start.given_w_body if kind == 0 else tw  # generalized carries the body-frame w
         E.run_brax(tx, tq, tv, w0, dt, steps, M, tI_b, tI_inv, tg, loads, kind, *rows)
     elif name == "implicit-gyro-split-torque":
-        moments, V, q_V = bullet_principal_frame(I_b)
+        moments, V, q_V = frame_of(bullet_principal_frame, I_b)
         B = E.bullet_matrix_from_quat(vec(quat_multiply(q, q_V)))
         E.run_bullet_maximal(tx, B, tv, tw, dt, steps, M, vec(moments), mat(V.T), vec(quat_conjugate(q_V)),
                              tg, loads, *rows)
@@ -189,6 +198,29 @@ def _run_engine_map(start: MapStart, name: str, steps: int, per_stage: bool, row
         rows[1][0] = quat_from_rotvec(phi)
         E.run_dart(tx, vec(phi), tv, vec(dart_exp_map_rot(phi).T @ w), dt, steps, M, tI_b, tI_inv, tg, loads,
                    *rows)
+
+
+# principal frames found so far, by (function, I_body's bytes): a case's starts have a few inertias
+# (its own and its perturbed starts'), each met again in every group (dt, steps) of the case
+_FRAMES: dict = {}
+FRAMES_KEPT = 1024  # at most this many (a sweep's bodies are each met once): then forgotten
+
+
+def frame_of(frame, I_b: np.ndarray):
+    """``frame(I_b)`` (a principal frame: splitting's, PyBullet's or PhysX's, arrays of kg m^2 and
+    body-frame axes), computed once per inertia (the same function of the same floats: the same
+    arrays), its arrays read-only."""
+    key = (frame, np.asarray(I_b, dtype=float).tobytes())
+    hit = _FRAMES.get(key)
+    if hit is None:
+        if len(_FRAMES) >= FRAMES_KEPT:
+            _FRAMES.clear()
+        hit = frame(I_b)
+        for a in hit:
+            if isinstance(a, np.ndarray):
+                a.setflags(write=False)
+        _FRAMES[key] = hit
+    return hit
 
 
 @functools.lru_cache(maxsize=None)

@@ -173,23 +173,27 @@ def _runs(pb, dt, steps):
 
 
 # the sharing case; a fast spin at a coarse step (maps whose perturbed copies reach the level's cap:
-# undecidable); a coarse flip (a map whose own run is not finite)
-GROUPS = [(CASE, DT, STEPS), ("high_spin_dt_10ms", 0.01, 60), ("dzhanibekov", 0.05, 100)]
+# undecidable); a coarse flip (a map whose own run is not finite); a longer run (its 27 maps compared
+# in blocks, BLOCK_SAMPLES)
+GROUPS = [(CASE, DT, STEPS), ("high_spin_dt_10ms", 0.01, 60), ("dzhanibekov", 0.05, 100), ("dzhanibekov", 0.01, 900)]
 
 
 @pytest.mark.parametrize("case, dt, steps", GROUPS)
-@pytest.mark.parametrize("precision", ["float64", "float32"])
-def test_the_stacked_comparison_is_the_one_map_at_a_time_result(case, dt, steps, precision):
+@pytest.mark.parametrize("precision, block", [("float64", None), ("float32", None), ("float64", 16)])
+def test_the_stacked_comparison_is_the_one_map_at_a_time_result(monkeypatch, case, dt, steps, precision, block):
     """A run compared with every map at once (CandidateMaps, the group's runs) gets exactly the dict
     it gets compared with one map after another: verdicts, every candidate's difference, level and
-    ratio, the tie, the undecidable maps."""
+    ratio, the tie, the undecidable maps; also with blocks of one map (or one perturbed copy) each."""
     pb = load_case(case)
     spec = RunSpec(pb, "mujoco", "Euler", dt, steps, precision)
+    runs = _runs(pb, dt, steps)
+    want = [_per_map(pb, tr, spec, TruthCache()) for tr in runs]
+    if block is not None:
+        monkeypatch.setattr(judge, "BLOCK_SAMPLES", block)
     shared = TruthCache()
-    for tr in _runs(pb, dt, steps):
-        stacked = identify(pb, tr, spec, shared)
-        assert shared.candidate_maps(pb, dt, steps, precision, "per-stage", SCHEME_CANDIDATES) is not None
-        assert stacked == _per_map(pb, tr, spec, TruthCache())
+    got = [identify(pb, tr, spec, shared) for tr in runs]
+    assert shared.candidate_maps(pb, dt, steps, precision, "per-stage", SCHEME_CANDIDATES) is not None
+    assert got == want
 
 
 def test_a_further_run_of_a_group_is_compared_in_one_pass(monkeypatch):
@@ -202,12 +206,12 @@ def test_a_further_run_of_a_group_is_compared_in_one_pass(monkeypatch):
     first = identify(pb, tr, spec, cache)
     assert len(first["indistinguishable"]) > 1  # a tie: pairs of maps were compared
     calls = {"n": 0}
-    angle = judge._angle
+    angle = judge._angle_parts
 
     def counting_angle(*a):
         calls["n"] += 1
         return angle(*a)
-    monkeypatch.setattr(judge, "_angle", counting_angle)
+    monkeypatch.setattr(judge, "_angle_parts", counting_angle)
     assert identify(pb, tr, dataclasses.replace(spec, integrator="implicit"), cache) == first
     assert calls["n"] == 1
 

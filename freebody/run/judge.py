@@ -34,7 +34,7 @@ from ..results.document import select_saved
 from ..results import identification  # the verdicts' names, read by every reader
 from ..results.judgement import run_judgement
 from .experiment import experiment
-from .metrics import STAT_ARRAYS, RunMetrics, Scales, Series, truth_scales
+from .metrics import STAT_ARRAYS, RunMetrics, Scales, Series, Terms, truth_scales
 from .records import RunOutput, RunResult, RunSpec, Simulated, Status
 
 # The engines' maps: what an engine integrator plausibly implements (rk4 only for an RK4 of its
@@ -47,10 +47,15 @@ ENGINE_SCHEMES = ("semi-implicit-explicit-gyro", "semi-implicit-implicit-gyro")
 # other reference integrators (textbook schemes no engine is known to use).
 SCHEME_CANDIDATES = (*ENGINE_SCHEMES, "rk4", *ENGINE_MAPS,
                      *(n for n in INTEGRATORS if n not in (*ENGINE_SCHEMES, "rk4")))
-# A run judged whole is compared with every candidate map at once (:class:`CandidateMaps`) when the
-# candidates x samples are at most this many (one temporary array of the comparison: 2 MB); a longer
-# run is compared with one map after another (the same numbers), which bounds its memory.
-STACKED_SAMPLES_MAX = 1 << 18
+# A run judged whole is compared with every candidate map stacked (:class:`CandidateMaps`, one more
+# copy of the maps' orientations: 32 MB at most) when the candidates x samples are at most this many;
+# a longer run is compared with one map after another (the same numbers), which bounds its memory.
+STACKED_SAMPLES_MAX = 1 << 20
+# The comparisons of a run (or of a map's perturbed copies) with several maps go block by block,
+# about this many samples a block: each temporary array (128 KB) stays in the CPU's cache, and a
+# short run's maps all go in one block (the per-call cost of numpy, not the arithmetic, is a 10-step
+# run's; a long run's blocks hold one map each, as one map after another).
+BLOCK_SAMPLES = 1 << 14
 
 
 def judge_run(spec: RunSpec, sim: Simulated, cache: "TruthCache", identify_scheme: bool = True,
@@ -75,12 +80,13 @@ def judge_run(spec: RunSpec, sim: Simulated, cache: "TruthCache", identify_schem
     if trajectory is None or len(trajectory) == 0:
         return no_samples(base, status, message, sim.wall_time_s, version, settings, diverged_at)
     whole_truth, truth = truth, truth.head(len(trajectory))
+    truth_terms = cache.terms(pb, whole_truth).of(pb, truth)  # the group's truth's, formed once
     scheme = identify_scheme and not spec.is_reference
-    judge = RunJudge(spec, truth_scales(pb, truth),
+    judge = RunJudge(spec, truth_terms.scales,
                      Identification(spec, cached_map_pieces(spec, cache),
                                     lambda: cached_candidate_maps(spec, cache)) if scheme else None,
                      VsEngine(spec, compare_with, cached_engine_pieces(spec, cache)) if scheme and compare_with else None)
-    judge.feed(trajectory, truth, diverged_at)
+    judge.feed(trajectory, truth, diverged_at, truth_terms)
     result = recorded(RunResult(**base, **judge.outcome(sim.reason), wall_time_s=sim.wall_time_s,
                                 engine_version=version, engine_settings=settings or {},
                                 compile_time_s=sim.compile_time_s))
@@ -187,14 +193,16 @@ class RunJudge:
         self.diverged_index: int | None = None  # decided by outcome()
         self._rows: list = []
 
-    def feed(self, tr: Trajectory, truth: Trajectory, diverged_at: float | None = None) -> None:
+    def feed(self, tr: Trajectory, truth: Trajectory, diverged_at: float | None = None,
+             truth_terms: Terms | None = None) -> None:
         """The next samples of the run (global indices n, n + 1, ...) and the truth's at them;
-        ``diverged_at``: the engine reported a blow-up at that time (the last piece)."""
+        ``diverged_at``: the engine reported a blow-up at that time (the last piece);
+        ``truth_terms``: the truth samples' :class:`~freebody.run.metrics.Terms`, if formed."""
         k0, m = self.n, len(tr)
         if m == 0:
             return
         truth = truth.head(m)
-        s, new, best_before = self.metrics.feed(tr, truth, k0, diverged_at)
+        s, new, best_before = self.metrics.feed(tr, truth, k0, diverged_at, truth_terms)
         if self.every is not None:
             self._keep_saved(tr, truth, s, k0, new, best_before)
         if self.metrics.undiverged:
@@ -274,6 +282,15 @@ class TruthCache:
         if key not in self._cache:
             self._cache[key] = truth_trajectory(problem, dt, steps)
         return self._cache[key]
+
+    def terms(self, problem: Problem, tr: Trajectory) -> Terms:
+        """The :class:`~freebody.run.metrics.Terms` of a trajectory the cache holds (a group's
+        truth: its energies, L and scales), formed once for every run judged against it."""
+        key = (id(problem), problem.name, "terms", id(tr))
+        hit = self._cache.get(key)
+        if hit is None or hit.tr is not tr:  # (a cached Terms keeps its trajectory, and so its id)
+            hit = self._cache[key] = Terms(problem, tr)
+        return hit
 
     def engine_run(self, problem: Problem, engine: str, integrator: str, dt: float, steps: int) -> Trajectory:
         """Another engine's float64 trajectory of the same case (for ported engines' comparison)."""
@@ -362,7 +379,8 @@ class TruthCache:
 
     def candidate_maps(self, problem: Problem, dt: float, steps: int, precision: str, load_sampling: str,
                        names: tuple[str, ...]) -> "CandidateMaps | None":
-        """Every candidate map ``names`` of the group (their :meth:`map_piece`) stacked as one
+        """Every candidate map ``names`` of the group (their :meth:`orientation` and
+        :meth:`roundoff`, as :meth:`map_piece` takes them) stacked as one
         :class:`CandidateMaps`, prepared once and shared by every run of the same (case, dt, steps,
         precision, load sampling); None for a group too long to stack
         (:data:`STACKED_SAMPLES_MAX`: its runs compare with each map in turn)."""
@@ -370,8 +388,9 @@ class TruthCache:
             return None
         key = (id(problem), problem.name, dt, steps, "candidates", precision, load_sampling, names)
         if key not in self._cache:
-            self._cache[key] = CandidateMaps.of(names, [self.map_piece(problem, name, dt, steps, precision,
-                                                                       load_sampling) for name in names])
+            qs = [self.orientation(problem, name, dt, steps, load_sampling) for name in names]
+            spreads = [self.roundoff(problem, name, dt, steps, precision, load_sampling) for name in names]
+            self._cache[key] = CandidateMaps.of(names, qs, spreads, precision)
         return self._cache[key]
 
     def _simulate_map(self, problem: Problem, integrator: str, dt: float, steps: int,
@@ -578,12 +597,17 @@ def roundoff_spread(pb: Problem, integrator: str, dt: float, steps: int, precisi
         elif start.dt != float(dt):
             raise ValueError(f"a start prepared at dt = {start.dt!r} for a spread at dt = {dt!r}")
         runs.append(map_orientations(start, integrator, steps, load_sampling))
-    if not runs:
-        return np.zeros(len(q_ref))
-    with np.errstate(invalid="ignore"):
-        s = _angle(q_ref, np.stack(runs))  # (starts, N): every copy at once
-    # the largest over the copies (none is NaN: inf where not finite), as _spread_update one by one
-    return np.maximum(np.zeros(len(q_ref)), np.where(np.isfinite(s), s, np.inf).max(axis=0))
+    spread = np.zeros(len(q_ref))
+    size = BLOCK_SAMPLES // max(len(q_ref), 1)  # copies compared at once
+    for i in range(0, len(runs), max(size, 1)):
+        if size <= 1:  # a long run: one copy at a time
+            spread = _spread_update(spread, q_ref, runs[i])
+            continue
+        with np.errstate(invalid="ignore"):
+            s = _angle(q_ref, np.stack(runs[i:i + size]))  # (copies, N)
+        # the largest over the copies (none is NaN: inf where not finite), as _spread_update one by one
+        spread = np.maximum(spread, np.where(np.isfinite(s), s, np.inf).max(axis=0))
+    return spread
 
 
 def _spread_update(spread: np.ndarray, q_ref: np.ndarray, q_other: np.ndarray) -> np.ndarray:
@@ -596,13 +620,21 @@ def _spread_update(spread: np.ndarray, q_ref: np.ndarray, q_other: np.ndarray) -
 
 def _angle(qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
     """Angle (rad) of the rotation between quaternions qa and qb (..., N, 4), wxyz, broadcast
-    against each other (e.g. (C, N, 4) maps and one run's (N, 4): (C, N)): 2 atan2(|vec(d)|,
-    |w(d)|) with d = conj(qa) qb, as :func:`~freebody.reference_impl.rotations.geodesic_angle`
-    (to round-off) without its normalisations, which the ratio does not need: 8x faster, and
-    identification compares every run with every candidate map.  Element by element the same
-    floats whatever the shapes (numpy's ufuncs round each element alone)."""
-    aw, ax, ay, az = qa[..., 0], qa[..., 1], qa[..., 2], qa[..., 3]
-    bw, bx, by, bz = qb[..., 0], qb[..., 1], qb[..., 2], qb[..., 3]
+    against each other (e.g. (S, N, 4) perturbed copies and a map's (N, 4): (S, N)): 2
+    atan2(|vec(d)|, |w(d)|) with d = conj(qa) qb, as
+    :func:`~freebody.reference_impl.rotations.geodesic_angle` (to round-off) without its
+    normalisations, which the ratio does not need: 8x faster, and identification compares every
+    run with every candidate map.  Element by element the same floats whatever the shapes and
+    layouts (numpy's ufuncs round each element alone): see :func:`_angle_parts`."""
+    return _angle_parts((qa[..., 0], qa[..., 1], qa[..., 2], qa[..., 3]),
+                        (qb[..., 0], qb[..., 1], qb[..., 2], qb[..., 3]))
+
+
+def _angle_parts(a, b) -> np.ndarray:
+    """:func:`_angle` of quaternions given by component: ``a``, ``b`` each (w, x, y, z), four
+    arrays of the same (broadcast) shape, e.g. the rows of a (4, C, N) array."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
     w = aw * bw + ax * bx + ay * by + az * bz
     vx = aw * bx - bw * ax - (ay * bz - az * by)
     vy = aw * by - bw * ay - (az * bx - ax * bz)
@@ -615,8 +647,10 @@ def roundoff_level(spread: np.ndarray, before: float = 0.0, drift: np.ndarray | 
     max(SCHEME_ROUNDOFF_FACTOR x the spread's running maximum, ``drift`` (a float32 run's
     :func:`rounding_drift`), SCHEME_ROUNDOFF_FLOOR_RAD), at most SCHEME_ROUNDOFF_LEVEL_MAX_RAD (a
     sample at the cap, or where a perturbed copy was not finite, is one where the map can identify
-    nothing).  ``before``: the spread's maximum over the samples before these (a run judged in chunks)."""
-    running = np.maximum(np.maximum.accumulate(spread), before) if len(spread) else np.asarray(spread, float)
+    nothing).  ``before``: the spread's maximum over the samples before these (a run judged in chunks).
+    Several maps' at once: spread and drift (C, N), the running maxima along each row."""
+    spread = np.asarray(spread, float)
+    running = np.maximum(np.maximum.accumulate(spread, axis=-1), before) if spread.size else spread
     level = np.maximum(tol.SCHEME_ROUNDOFF_FACTOR * running, tol.SCHEME_ROUNDOFF_FLOOR_RAD)
     if drift is not None:
         level = np.maximum(level, drift)
@@ -726,54 +760,87 @@ def map_piece(q_ref: np.ndarray, spread: np.ndarray, precision: str, k0: int = 0
         base = np.zeros(0)
     drift, theta = rounding_drift(q_ref, k0, theta0, q_before, precision)
     n = min(len(base), len(drift))
-    base, drift = base[:n], drift[:n]
+    return MapPiece(q_ref, *piece_levels(base[:n], drift[:n]), spread_max, theta)
+
+
+def piece_levels(base: np.ndarray, drift: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(:attr:`MapPiece.level`, :attr:`MapPiece.raw`) (N,) rad from the spread's running maximum
+    ``base`` (N,) and the rounding drift (N,) (:func:`rounding_drift`); several maps' at once:
+    (C, N) each."""
     # level < cap wherever max(factor x base, drift) < cap: the floor is below the cap
     level = roundoff_level(base, drift=drift)
     raw = np.minimum(np.maximum(np.maximum(base, drift), tol.SCHEME_ROUNDOFF_FLOOR_RAD),
                      tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD)
-    return MapPiece(q_ref, level, raw, spread_max, theta)
+    return level, raw
 
 
 @dataclasses.dataclass(frozen=True)
 class CandidateMaps:
     """Every candidate map of a group over its whole run, stacked: what a run judged whole is
     compared with, all maps at once (:meth:`Identification.update`), prepared once per (case, dt,
-    steps, precision, load sampling) by :meth:`TruthCache.candidate_maps` from the maps'
-    :class:`MapPiece`.
+    steps, precision, load sampling) by :meth:`TruthCache.candidate_maps`: what each map's
+    :class:`MapPiece` holds, stacked.
 
     names : the C maps, in :func:`scheme_candidates` order.
-    q : (C, N, 4) wxyz, body -> world: each map's orientations.
+    parts : (4, C, N): each map's orientations (wxyz, body -> world) by component, each (C, N) row
+        contiguous (the comparison reads them so, block by block: :data:`BLOCK_SAMPLES`).
     level, raw : (C, N) rad: each map's :attr:`MapPiece.level` and :attr:`MapPiece.raw`.
     agree : which pairs of maps agree within their levels over a run's samples (:meth:`within`),
         found once for the group's runs.
     """
 
     names: tuple[str, ...]
-    q: np.ndarray
+    parts: np.ndarray
     level: np.ndarray
     raw: np.ndarray
     agree: dict = dataclasses.field(default_factory=dict, compare=False)
 
     @classmethod
-    def of(cls, names: tuple[str, ...], pieces: list[MapPiece]) -> "CandidateMaps | None":
-        """The maps' pieces stacked; None unless every piece has the same number of samples."""
-        n = len(pieces[0].q) if pieces else 0
-        if not pieces or any(len(p.q) != n or len(p.level) != n or len(p.raw) != n for p in pieces):
+    def of(cls, names: tuple[str, ...], qs: list[np.ndarray], spreads: list[np.ndarray],
+           precision: str) -> "CandidateMaps | None":
+        """The maps of their orientations q (N, 4) and round-off spreads (N,) (the group's: their
+        levels as :func:`map_piece` forms them, all maps at once); None unless every map has N samples."""
+        n = len(qs[0]) if qs else 0
+        if not qs or any(len(q) != n for q in qs) or any(len(s) != n for s in spreads):
             return None
-        return cls(tuple(names), np.stack([p.q for p in pieces]), np.stack([p.level for p in pieces]),
-                   np.stack([p.raw for p in pieces]))
+        base = np.maximum(np.maximum.accumulate(np.stack(spreads), axis=1), 0.0)
+        if tol.SCHEME_ROUNDING_DRIFT_PER_STEP.get(precision, 0.0):
+            drift = np.stack([rounding_drift(q, 0, 0.0, None, precision)[0] for q in qs])
+        else:  # rounding_drift's zeros
+            drift = np.zeros(base.shape)
+        return cls(tuple(names), np.ascontiguousarray(np.stack(qs).transpose(2, 0, 1)),
+                   *piece_levels(base, drift))
+
+    def compare(self, q: np.ndarray, k0: int) -> tuple[np.ndarray, ...]:
+        """A run's orientations q (n, 4) against every map's samples k0 .. k0 + n - 1 (as many):
+        per map (C,), whether the map tells nothing at some sample (its level at the cap or either
+        not finite), whether every difference is finite, the largest difference, whether it tells
+        anything at some sample, and the largest difference over level there (-inf if nowhere)."""
+        n, cap = len(q), tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD
+        run = np.ascontiguousarray(q.T)  # (4, n): its components, contiguous
+        out = []
+        size = max(1, BLOCK_SAMPLES // n)  # maps compared at once
+        for c in range(0, len(self.names), size):
+            level = self.level[c:c + size, k0:k0 + n]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d = _angle_parts(self.parts[:, c:c + size, k0:k0 + n], run)  # (maps, n)
+                finite = np.isfinite(d)
+                open_ = (level < cap) & finite  # where each map can tell anything
+                ratio = np.where(open_, d / level, -np.inf).max(axis=1)
+            out.append((~open_.all(axis=1), finite.all(axis=1), d.max(axis=1), open_.any(axis=1), ratio))
+        return tuple(np.concatenate(a) for a in zip(*out))
 
     def within(self, pairs: list[tuple[int, int]], k0: int, n: int) -> list[bool]:
         """For each pair (a, b) of map indices, whether the two maps agree within the larger of
         their levels at each of their samples k0 .. k0 + n - 1 (:func:`_within`), each pair found
         once for every run of the group."""
         todo = [p for p in pairs if (p, k0, n) not in self.agree]
-        size = max(1, STACKED_SAMPLES_MAX // max(n, 1))  # pairs compared at once
-        q, level = self.q[:, k0:k0 + n], self.level[:, k0:k0 + n]
+        size = max(1, BLOCK_SAMPLES // max(n, 1))  # pairs compared at once
+        parts, level = self.parts[:, :, k0:k0 + n], self.level[:, k0:k0 + n]
         for i in range(0, len(todo), size):
             a, b = np.array(todo[i:i + size]).T
             with np.errstate(invalid="ignore"):
-                ok = np.all(_angle(q[a], q[b]) <= np.maximum(level[a], level[b]), axis=1)
+                ok = np.all(_angle_parts(parts[:, a], parts[:, b]) <= np.maximum(level[a], level[b]), axis=1)
             self.agree.update(((p, k0, n), v) for p, v in zip(todo[i:i + size], ok.tolist()))
         return [self.agree[(p, k0, n)] for p in pairs]
 
@@ -848,11 +915,11 @@ class Identification:
     def _update_stacked(self, q: np.ndarray) -> None:
         """:meth:`update` against every map at once (:attr:`maps`: whole runs, the samples from
         this update's first on): the same state, from the same floats, as one map after another."""
-        n, k0, maps, cap = len(q), self.n, self.maps, tol.SCHEME_ROUNDOFF_LEVEL_MAX_RAD
+        n, k0, maps = len(q), self.n, self.maps
         if n == 0:
             return
-        q_maps, level, raw = maps.q[:, k0:k0 + n], maps.level[:, k0:k0 + n], maps.raw[:, k0:k0 + n]
-        m = q_maps.shape[1]  # the maps' samples among the run's
+        level, raw = maps.level[:, k0:k0 + n], maps.raw[:, k0:k0 + n]
+        m = level.shape[1]  # the maps' samples among the run's
         for c, name in enumerate(self.names):
             if m:
                 self.levels[name], self.roundoff[name] = float(level[c, m - 1]), float(raw[c, m - 1])
@@ -861,12 +928,7 @@ class Identification:
             self.ratios.update(dict.fromkeys(self.names))
             self.n += n
             return
-        with np.errstate(invalid="ignore", divide="ignore"):
-            d = _angle(q_maps, q)  # (C, n)
-            finite = np.isfinite(d)
-            open_ = (level < cap) & finite  # where each map can tell anything
-            ratio = np.where(open_, d / level, -np.inf).max(axis=1)
-        shut, all_finite, d_max, any_open = ~open_.all(axis=1), finite.all(axis=1), d.max(axis=1), open_.any(axis=1)
+        shut, all_finite, d_max, any_open, ratio = maps.compare(q, k0)
         kept = []
         for c, name in enumerate(self.names):
             self.closed[name] = self.closed[name] or bool(shut[c])
@@ -878,6 +940,7 @@ class Identification:
                 self.ratios[name] = max(self.ratios[name], float(ratio[c]))
             if self.ratios[name] <= 1.0 and not self.closed[name]:
                 kept.append(c)
+        # the tie: only maps that still reproduce the run matter (kept, in candidate order)
         pairs = [p for p in itertools.combinations(kept, 2) if (self.names[p[0]], self.names[p[1]]) not in self.apart]
         for (a, b), ok in zip(pairs, maps.within(pairs, k0, n)):
             if not ok:

@@ -5,6 +5,7 @@ All series are arrays of shape (N,) over the samples t_k; maxima and finals are 
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,31 +107,71 @@ class Scales:
             (other.ke, other.omega, other.velocity, other.momentum))))
 
 
-def truth_scales(problem: Problem, truth: Trajectory) -> Scales:
-    """The :class:`Scales` of a truth's samples (one or more)."""
-    ke_true, _ = energies(problem, truth)
-    L_true = angular_momentum(problem.body.I_body, truth.quaternion_wxyz, truth.angular_velocity)
-    return Scales(float(np.max(ke_true)), float(np.max(np.linalg.norm(truth.angular_velocity, axis=1))),
-                  float(np.max(np.linalg.norm(truth.linear_velocity, axis=1))),
-                  float(np.max(np.linalg.norm(L_true, axis=-1))))
+class Terms:
+    """What the computations on one trajectory's samples share, each computed once when first
+    asked for: a chunk's error series, divergence check and growth of the state take the run's; the
+    truth's scales and series take the truth's (formed once per group for a whole truth,
+    :meth:`freebody.run.judge.TruthCache.terms`).  The same functions on the same arrays as each
+    computation alone: the same numbers.
+
+    energies : (kinetic (N,), total (N,)) J (:func:`energies`).
+    L : (N, 3) kg m^2/s, world, about the COM (``conventions.angular_momentum``).
+    omega : (N,) rad/s, |w|.  speed : (N,) m/s, |v|.
+    scales : the :class:`Scales` of these samples (:func:`truth_scales`).
+    """
+
+    def __init__(self, problem: Problem, tr: Trajectory):
+        self.problem, self.tr = problem, tr
+
+    def of(self, problem: Problem, tr: Trajectory) -> "Terms":
+        """These terms when they are those of (problem, tr), else the terms of (problem, tr)."""
+        return self if tr is self.tr and problem is self.problem else Terms(problem, tr)
+
+    @functools.cached_property
+    def energies(self) -> tuple[np.ndarray, np.ndarray]:
+        return energies(self.problem, self.tr)
+
+    @functools.cached_property
+    def L(self) -> np.ndarray:
+        return angular_momentum(self.problem.body.I_body, self.tr.quaternion_wxyz, self.tr.angular_velocity)
+
+    @functools.cached_property
+    def omega(self) -> np.ndarray:
+        return np.linalg.norm(self.tr.angular_velocity, axis=1)
+
+    @functools.cached_property
+    def speed(self) -> np.ndarray:
+        return np.linalg.norm(self.tr.linear_velocity, axis=1)
+
+    @functools.cached_property
+    def scales(self) -> Scales:
+        return Scales(float(np.max(self.energies[0])), float(np.max(self.omega)), float(np.max(self.speed)),
+                      float(np.max(np.linalg.norm(self.L, axis=-1))))
 
 
-def series(problem: Problem, tr: Trajectory, truth: Trajectory, scales: Scales | None = None) -> Series:
+def truth_scales(problem: Problem, truth: Trajectory, terms: Terms | None = None) -> Scales:
+    """The :class:`Scales` of a truth's samples (one or more); ``terms``: their :class:`Terms`, if formed."""
+    return (Terms(problem, truth) if terms is None else terms.of(problem, truth)).scales
+
+
+def series(problem: Problem, tr: Trajectory, truth: Trajectory, scales: Scales | None = None,
+           terms: Terms | None = None, truth_terms: Terms | None = None) -> Series:
     """The error series of the samples of ``tr`` against the truth's (its first len(tr) samples),
     relative errors scaled by ``scales`` (None: the truth's own, :func:`truth_scales`): a run
-    judged in chunks passes its whole truth's, so that each chunk's series are the whole run's."""
+    judged in chunks passes its whole truth's, so that each chunk's series are the whole run's.
+    ``terms``, ``truth_terms``: the :class:`Terms` of ``tr`` and of those truth samples, if formed."""
     n = len(tr)
     truth = truth.head(n)
+    run = Terms(problem, tr) if terms is None else terms.of(problem, tr)
+    true = Terms(problem, truth) if truth_terms is None else truth_terms.of(problem, truth)
     if scales is None:
-        scales = truth_scales(problem, truth)
-    I_b = problem.body.I_body
+        scales = true.scales
     ori = geodesic_angle(truth.quaternion_wxyz, tr.quaternion_wxyz)
-    L = angular_momentum(I_b, tr.quaternion_wxyz, tr.angular_velocity)
-    L_true = angular_momentum(I_b, truth.quaternion_wxyz, truth.angular_velocity)
+    L, L_true = run.L, true.L
     L_scale = scales.momentum
     dL = np.linalg.norm(L - L_true, axis=-1)
-    _, E = energies(problem, tr)
-    _, E_true = energies(problem, truth)
+    _, E = run.energies
+    _, E_true = true.energies
     E_scale = scales.ke
     dE = np.abs(E - E_true)
     return Series(
@@ -250,21 +291,21 @@ def divergence_bounds(scales: Scales) -> dict[str, float]:
 
 
 def divergence_firsts(problem: Problem, tr: Trajectory, bounds: dict[str, float],
-                      wanted=DIVERGENCE_KINDS) -> dict[str, int]:
+                      wanted=DIVERGENCE_KINDS, terms: Terms | None = None) -> dict[str, int]:
     """{kind: index in ``tr`` of its first sample} of each of the ``wanted`` kinds of
-    :data:`DIVERGENCE_KINDS` that occurs in these samples."""
+    :data:`DIVERGENCE_KINDS` that occurs in these samples; ``terms``: their :class:`Terms`, if formed."""
     found = {}
+    terms = Terms(problem, tr) if terms is None else terms.of(problem, tr)
     if "not finite" in wanted:
         arrays = (tr.position, tr.quaternion_wxyz, tr.linear_velocity, tr.angular_velocity)
         bad = ~np.all(np.concatenate([np.isfinite(a) for a in arrays], axis=1), axis=1)
         found["not finite"] = _first(bad)
     if "energy" in wanted:
-        ke, _ = energies(problem, tr)
-        found["energy"] = _first(ke > bounds["energy"])
+        found["energy"] = _first(terms.energies[0] > bounds["energy"])
     if "omega" in wanted:
-        found["omega"] = _first(np.linalg.norm(tr.angular_velocity, axis=1) > bounds["omega"])
+        found["omega"] = _first(terms.omega > bounds["omega"])
     if "velocity" in wanted:
-        found["velocity"] = _first(np.linalg.norm(tr.linear_velocity, axis=1) > bounds["velocity"])
+        found["velocity"] = _first(terms.speed > bounds["velocity"])
     if "orthonormality" in wanted and tr.orthonormality_error is not None:
         found["orthonormality"] = _first(tr.orthonormality_error > tol.DIVERGENCE_ORTHONORMALITY_MAX)
     return {k: v for k, v in found.items() if v is not None}
@@ -326,14 +367,16 @@ class GrowthStats:
         self.blow_up: int | None = None  # global index of the first sample beyond a blow-up bound
         self.capped: int | None = None  # ... of the first sample with |w| dt beyond the cap
 
-    def update(self, problem: Problem, tr: Trajectory, k0: int, scales: Scales) -> None:
+    def update(self, problem: Problem, tr: Trajectory, k0: int, scales: Scales, terms: Terms | None = None) -> None:
         """The run's next samples ``tr`` (global indices k0, k0 + 1, ...); ``scales``: the truth's
-        maxima over the whole run (the blow-up bounds, :func:`blow_up_bounds`)."""
+        maxima over the whole run (the blow-up bounds, :func:`blow_up_bounds`); ``terms``: the
+        samples' :class:`Terms`, if formed."""
         if len(tr) == 0:
             return
+        terms = Terms(problem, tr) if terms is None else terms.of(problem, tr)
         with np.errstate(all="ignore"):
-            w = np.linalg.norm(tr.angular_velocity, axis=1)
-            ke, _ = energies(problem, tr)
+            w = terms.omega
+            ke, _ = terms.energies
         self.omega.update(w, k0)
         self.ke.update(ke, k0)
         for v in (self.omega, self.ke):
@@ -422,16 +465,19 @@ class RunMetrics:
         """Whether no divergence has been found (nor reported by the engine) in the samples fed."""
         return not self.firsts and self.engine_diverged is None
 
-    def feed(self, tr: Trajectory, truth: Trajectory, k0: int,
-             diverged_at: float | None = None) -> tuple[Series, list[int], dict[str, int | None]]:
+    def feed(self, tr: Trajectory, truth: Trajectory, k0: int, diverged_at: float | None = None,
+             truth_terms: Terms | None = None) -> tuple[Series, list[int], dict[str, int | None]]:
         """The run's next samples ``tr`` (global indices k0, k0 + 1, ...) and the truth's at them
-        (as many); ``diverged_at``: the engine reported a blow-up at that time (the last piece).
+        (as many); ``diverged_at``: the engine reported a blow-up at that time (the last piece);
+        ``truth_terms``: those truth samples' :class:`Terms`, if formed (a group's truth).
         Returns (the chunk's :class:`Series`, the global indices of the divergences first found in
         it, each array's index of its largest finite value before this chunk)."""
         pb, m = self.pb, len(tr)
+        run = Terms(pb, tr)  # what the series, the divergence check and the growth share
+        true = Terms(pb, truth) if truth_terms is None else truth_terms.of(pb, truth)
         self.quaternion_norm.update(quaternion_norm_error(tr.quaternion_wxyz), k0)  # before series() uses q / |q|
-        self.truth_max = truth_scales(pb, truth).merged(self.truth_max)
-        s = series(pb, tr, truth, self.scales)
+        self.truth_max = true.scales.merged(self.truth_max)
+        s = series(pb, tr, truth, self.scales, run, true)
         ortho = tr.orthonormality_error
         new: list[int] = []
         if diverged_at is not None:
@@ -440,7 +486,7 @@ class RunMetrics:
             new.append(d)
         elif self.engine_diverged is None:
             wanted = [k for k in DIVERGENCE_KINDS if k not in self.firsts]
-            for kind, i in divergence_firsts(pb, tr, self.bounds, wanted).items():
+            for kind, i in divergence_firsts(pb, tr, self.bounds, wanted, run).items():
                 self.firsts[kind] = k0 + i
                 self.times[k0 + i] = float(tr.t[i])
                 new.append(k0 + i)
@@ -449,7 +495,7 @@ class RunMetrics:
                 self.before[d] = self.stats.prefix(s, ortho, k0, prefix_end(d, k0 + m))
         best_before = {name: self.stats.maxima[name].best_index for name in STAT_ARRAYS}
         self.stats.update(s, ortho, k0)
-        self.growth.update(pb, tr, k0, self.scales)
+        self.growth.update(pb, tr, k0, self.scales, run)
         return s, new, best_before
 
     def engine_stopped(self, n: int, t: float) -> None:
