@@ -23,7 +23,7 @@ from freebody.reference_impl.conventions import Trajectory, angular_velocity_wor
 from freebody.reference_impl.rotations import matrix_from_quat, quat_from_matrix
 
 __all__ = ["MUJOCO_PRINCIPAL_AXES_ATOL", "MUJOCO_TRIANGLE_ROUNDOFF", "alignfree_default",
-           "format_floats", "free_joint_trajectory", "inertial_element"]
+           "format_floats", "free_joint_trajectory", "fullinertia_element", "inertial_element"]
 
 # A flat body (A + B = C exactly, e.g. diag(1, 2, 3)) with off-diagonal terms fails MuJoCo's
 # "A + B >= C" check about a third of the time through round-off in the diagonalisation; such a
@@ -40,6 +40,15 @@ def format_floats(a) -> str:
     return " ".join(repr(float(x)) for x in np.ravel(a))
 
 
+def fullinertia_element(mass: float, I_body: np.ndarray) -> str:
+    """``<inertial>`` at the body origin with the full tensor (``fullinertia``), unchecked: what
+    :func:`inertial_element` returns whenever MuJoCo accepts it.  mass : kg.  I_body : (3, 3)
+    kg m^2, about the COM, body frame."""
+    I = np.asarray(I_body, dtype=float)
+    return (f'<inertial pos="0 0 0" mass="{format_floats(mass)}" fullinertia="'
+            f'{format_floats([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])}"/>')
+
+
 def inertial_element(mass: float, I_body: np.ndarray) -> str:
     """``<inertial>`` at the body origin with the full tensor (``fullinertia``).
 
@@ -50,8 +59,7 @@ def inertial_element(mass: float, I_body: np.ndarray) -> str:
     MUJOCO_TRIANGLE_ROUNDOFF * C.  A real violation is left for MuJoCo to reject.
     """
     I = np.asarray(I_body, dtype=float)
-    full = (f'<inertial pos="0 0 0" mass="{format_floats(mass)}" fullinertia="'
-            f'{format_floats([I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]])}"/>')
+    full = fullinertia_element(mass, I)
     try:
         mujoco.MjModel.from_xml_string(f"<mujoco><worldbody><body><freejoint/>{full}"
                                        f"</body></worldbody></mujoco>")

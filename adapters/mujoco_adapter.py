@@ -52,6 +52,7 @@ sleeping and fluid forces are zero/off by default and build() checks that they a
 """
 from __future__ import annotations
 
+import functools
 from contextlib import contextmanager
 from typing import Callable, ClassVar
 
@@ -66,7 +67,7 @@ except ImportError:  # pragma: no cover - MuJoCo < 3.1
 from freebody.reference_impl.conventions import Trajectory, angular_velocity_body_from_world
 from .base import LOAD_SAMPLING_PER_STAGE, Adapter, EngineDiverged
 from .loads import Segment
-from .mjcf import alignfree_default, free_joint_trajectory, inertial_element
+from .mjcf import alignfree_default, free_joint_trajectory, fullinertia_element, inertial_element
 
 # freebody's integrator name (MuJoCo's own spelling) -> the mjtIntegrator member, default first.
 _INTEGRATOR_ENUM: dict[str, str] = {
@@ -82,6 +83,13 @@ _WATCHED_WARNINGS: tuple[str, ...] = ("mjWARN_BADQACC", "mjWARN_BADQVEL", "mjWAR
                                       "mjWARN_INERTIA")
 
 _BODY = 1  # body id of the free body (0 is the world)
+
+
+@functools.lru_cache(maxsize=1)
+def _empty_model() -> mujoco.MjModel:
+    """An empty model, compiled once per process: its mjOption holds the defaults build() records
+    settings against (read only; a compile per build cost ~0.7 ms, a sweep body's)."""
+    return mujoco.MjModel.from_xml_string("<mujoco/>")
 
 # The integrators that evaluate the forces at more than one stage of a step (mj_RungeKutta); the
 # others evaluate them once, in the mj_forward at the step's start.
@@ -151,7 +159,7 @@ class MujocoAdapter(Adapter):
     def build(self) -> None:
         """Compile the one-body model, set and read back its options, write the initial state and
         prepare advance()'s views and buffers."""
-        defaults = mujoco.MjModel.from_xml_string("<mujoco/>").opt
+        defaults = _empty_model().opt
         model = self._compile_model()
         self._set_options(model, defaults)
         data = mujoco.MjData(model)
@@ -171,11 +179,15 @@ class MujocoAdapter(Adapter):
         body = self.problem.body
         align = alignfree_default()
         compiler = '<compiler alignfree="false"/>' if align is not None else ""
-        xml = (f'<mujoco model="freebody">{compiler}<worldbody>'
-               f'<body name="body" pos="0 0 0" quat="1 0 0 0"><freejoint name="free"/>'
-               f'{inertial_element(body.mass, body.I_body)}'
-               f'</body></worldbody></mujoco>')
-        model = mujoco.MjModel.from_xml_string(xml)
+
+        def xml(inertial: str) -> str:
+            return (f'<mujoco model="freebody">{compiler}<worldbody>'
+                    f'<body name="body" pos="0 0 0" quat="1 0 0 0"><freejoint name="free"/>'
+                    f'{inertial}</body></worldbody></mujoco>')
+        try:  # the full tensor, which inertial_element returns whenever MuJoCo takes it: one compile
+            model = mujoco.MjModel.from_xml_string(xml(fullinertia_element(body.mass, body.I_body)))
+        except ValueError:  # inertial_element decides (a flat body's round-off), or raises its error
+            model = mujoco.MjModel.from_xml_string(xml(inertial_element(body.mass, body.I_body)))
         if align is not None:
             self.record_setting("compiler.alignfree", align, False)
         if not (np.array_equal(model.body_pos[_BODY], np.zeros(3))
