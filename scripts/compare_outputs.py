@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from freebody.results.document import open_run_trajectory
+
 # Keys that legitimately differ between two runs of the same inputs.
 VOLATILE = {"wall_time_s", "compile_time_s", "created", "platform"}
 
@@ -61,13 +63,14 @@ def main(before: str, after: str) -> int:
             continue
         if x["trajectory"] is None:
             continue
-        za, zb = np.load(A / x["trajectory"]), np.load(B / y["trajectory"])
-        if set(za.files) != set(zb.files):
-            problems.append(f"{k}: arrays {sorted(za.files)} != {sorted(zb.files)}")
-        for name in set(za.files) & set(zb.files):
-            arrays += 1
-            if not np.array_equal(za[name], zb[name], equal_nan=True):
-                problems.append(f"{k}: array {name} differs")
+        # the arrays by their names whatever the trajectory format (1 or 2: truth in a truth file)
+        with open_run_trajectory(A, x) as za, open_run_trajectory(B, y) as zb:
+            if set(za.files) != set(zb.files):
+                problems.append(f"{k}: arrays {sorted(za.files)} != {sorted(zb.files)}")
+            for name in set(za.files) & set(zb.files):
+                arrays += 1
+                if not np.array_equal(za[name], zb[name], equal_nan=True):
+                    problems.append(f"{k}: array {name} differs")
     rest_a = _strip({k: v for k, v in ra.items() if k != "runs"})
     rest_b = _strip({k: v for k, v in rb.items() if k != "runs"})
     problems += [f"results.json{d}" for d in _diff(rest_a, rest_b)]

@@ -6,7 +6,8 @@ Layout (the documented one; only the folder level under ``trajectories/`` is per
     DIR/results.json              the published results; names every trajectory file it uses
     DIR/results.previous.json     the last complete results, kept while results.json is incomplete
     DIR/report.md, DIR/report.html
-    DIR/trajectories/<n>/*.npz    the trajectory files of the invocation numbered n
+    DIR/trajectories/<n>/*.npz    the trajectory files of the invocation numbered n (and the truth
+                                  files ``truth__<hash>.npz`` they name: one per case and dt)
     DIR/.freebody.lock            locked (flock) by the freebody process writing DIR
     DIR/.freebody-owned.json      what freebody wrote in DIR that it may delete later, the last n
 
@@ -27,8 +28,8 @@ leaves results.json untouched; with some finished it writes them marked ``"incom
 and keeps the previous complete results.json as ``results.previous.json`` with its files, until
 the next complete run replaces both.
 
-Deleting: an owned folder loses only the trajectory files freebody names (``*__<12 hex>.npz``) and
-temporary files, and is removed if that empties it; an owned file (a trajectory of the older flat
+Deleting: an owned folder loses only the trajectory files freebody names (``*__<12 hex>.npz``, truth
+files included) and temporary files, and is removed if that empties it; an owned file (a trajectory of the older flat
 layout, ``trajectories/<name>.npz``, named by a results.json) is removed alone.  Anything else in
 DIR (a user's files, even inside ``trajectories/``) is never touched.
 
