@@ -268,8 +268,9 @@ def test_a_truth_file_is_a_name_beside_the_run(tmp_path):
         load_trajectory(path)
     _rewrite(path, truth=good)
     (tmp_path / good["file"]).rename(tmp_path / "elsewhere.npz")
-    with pytest.raises(InputError, match=f"its truth file {good['file']}"):
+    with pytest.raises(InputError, match=f"its truth file {good['file']}") as e:
         load_trajectory(path)
+    assert e.value.reason.startswith(f"its truth file {good['file']}: ")  # what a figure's note says
     (tmp_path / good["file"]).symlink_to(tmp_path / "elsewhere.npz")
     with pytest.raises(InputError, match="symbolic link"):
         load_trajectory(path)

@@ -654,8 +654,11 @@ def open_trajectory(path: Path, limit: int, what: str | None = None, truth_path=
 
     @contextmanager
     def open_truth(name: str):
-        with open_npz(locate(name), limit, f"{what}: its truth file {name}") as t:
-            yield t
+        try:
+            with open_npz(locate(name), limit, f"{what}: its truth file {name}") as t:
+                yield t
+        except FileRefused as e:  # the run's own file is fine: say that its truth file is not
+            raise FileRefused(what, f"its truth file {name}: {e.reason}") from None
 
     with open_npz(path, limit, what) as z:
         if LAYOUT not in z.files:
