@@ -108,6 +108,9 @@ def test_the_text_caching_canvas_draws_the_same_pixels():
         ax.set_title("orientation error (rad)", fontsize=9)
         ax.set_xlabel("t (s)")
         fig.text(0.1, 0.1, "x = 1.5e-03 (engine/RK4)", fontsize=7, rotation=30)
+        for k in range(12):  # the same glyphs at other positions within a pixel, and whole pixels away
+            fig.text(0.5 + k * 0.37 / (3 * plots.DPI), 0.2 + k * 0.07, "1e-05 t (s)", fontsize=7)
+            fig.text(0.5 + (k + 0.25) * 7 / (3 * plots.DPI), 0.25 + k * 0.07, "1e-05 t (s)", fontsize=7)
         canvas = canvas_of(fig)
         canvas.draw()
         return np.asarray(canvas.buffer_rgba()).copy()

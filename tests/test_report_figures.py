@@ -107,6 +107,63 @@ def test_figures_are_the_same_in_one_process_or_several(run_dir):
     assert all(png.startswith(b"\x89PNG") for png in serial.values())
 
 
+def _case_figures(run_dir: Path, order: list[tuple[str, float, bool]], fresh: bool) -> list[bytes]:
+    """case_dt's PNGs in this order of (case, dt, with the case's mass properties): each on a new
+    figure with its legend drawn in (fresh), or on the figure of the one before with the legend
+    drawn once (as render_figures draws them)."""
+    doc = json.loads((run_dir / "results.json").read_text())
+    runs = doc["runs"]
+    plots.forget_drawn()
+    out = []
+    for case, dt, with_physics in order:
+        if fresh:
+            plots.forget_drawn()
+        physics = rd.case_physics(doc, case) if with_physics else None
+        at = [r for r in runs if r["case"] == case and r["dt"] == dt]
+        out.append(plots.case_dt(case, dt, at, physics, run_dir, rd.labels(runs))[0])
+    return out
+
+
+def test_a_reused_figure_and_a_legend_drawn_once_give_the_same_bytes(run_dir):
+    # between figures the panels change scale (an empty panel is linear, with a note), limits and
+    # lines; the reused figure must forget all of it
+    order = [("offset_push", 0.01, True), ("quiz", 0.005, False), ("offset_push", 0.005, True),
+             ("quiz", 0.01, True), ("offset_push", 0.01, False)]
+    reused = _case_figures(run_dir, order, fresh=False)
+    assert plots._CASE_FIGURE is not None and list(plots._LEGENDS.values()) != [None]  # both kept
+    fresh = _case_figures(run_dir, order, fresh=True)
+    assert all(png.startswith(b"\x89PNG") for png in fresh)
+    assert reused == fresh
+
+
+def test_a_legend_is_drawn_in_where_its_place_is_not_blank(run_dir):
+    doc = json.loads((run_dir / "results.json").read_text())
+    runs = [r for r in doc["runs"] if r["case"] == "quiz" and r["dt"] == 0.01]
+    labs = rd.labels(runs)
+
+    def draw(place_text_under_legend: bool, fresh: bool) -> bytes:
+        if fresh:
+            plots.forget_drawn()
+        fig = plots._figure(6.0, 3.0)
+        ax = fig.add_axes((0.1, 0.15, 0.5, 0.7))
+        handles = {lab: ax.plot([0, 1], [k, k + 1], **plots.styles(labs)[lab])[0] for k, lab in enumerate(labs)}
+        if place_text_under_legend:
+            fig.text(0.97, 0.8, "under", ha="right", fontsize=7)
+        return plots._with_legend(fig, handles, labs, top=0.9)
+
+    plain = draw(True, fresh=True)
+    draw(False, fresh=True)  # the legend's pixels drawn alone, kept
+    with pytest.raises(plots.OverlayRefused):  # not blank there: refused, so drawn in
+        plots.png_bytes(_figure_with_text_at(0.97, 0.8, 6.0, 3.0), overlay=list(plots._LEGENDS.values())[0])
+    assert draw(True, fresh=False) == plain
+
+
+def _figure_with_text_at(x: float, y: float, w: float, h: float):
+    fig = plots._figure(w, h)
+    fig.text(x, y, "under", ha="right", fontsize=7)
+    return fig
+
+
 # --- every text inside its figure; colours --------------------------------------------------------------
 
 def test_a_cut_label_is_found_and_the_figure_grown_to_hold_it():
@@ -141,8 +198,8 @@ def test_every_figure_keeps_its_text_inside(run_dir, monkeypatch):
     seen = []
     real = plots.png_bytes
 
-    def check(fig):
-        png = real(fig)
+    def check(fig, overlay=None):  # a legend drawn once was checked alone (plots.drawn_alone)
+        png = real(fig, overlay)
         seen.append((fig, plots.text_overflow(fig)[1]))
         return png
 

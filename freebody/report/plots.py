@@ -20,6 +20,7 @@ fails (under pytest) on a text that still does (:func:`text_overflow`, :class:`C
 from __future__ import annotations
 
 import io
+import math
 import os
 import zipfile
 from pathlib import Path
@@ -63,6 +64,9 @@ def _figure(width_in: float, height_in: float):
 # Text layouts and extents kept per process (:func:`agg_canvas`): the same tick labels, titles
 # and legend entries recur in every figure of a report; cleared beyond this many entries.
 TEXT_CACHE_ENTRIES = 20_000
+# The settings that choose a text's font files (those matplotlib's findfont reads).
+_FONT_PARAMS = tuple(f"font.{k}" for k in ("family", "style", "variant", "weight", "stretch", "size", "serif",
+                                           "sans-serif", "cursive", "fantasy", "monospace"))
 _CANVAS_CLASS = None
 
 
@@ -88,16 +92,32 @@ def _cached_text_canvas():
     from matplotlib.font_manager import fontManager
 
     if not (hasattr(agg.RendererAgg, "_draw_text_glyphs_and_boxes") and hasattr(agg, "get_hinting_flag")
-            and hasattr(fontManager, "_find_fonts_by_props")
-            and hasattr(agg.RendererAgg, "_prepare_font")):
+            and hasattr(fontManager, "_find_fonts_by_props") and hasattr(agg, "RenderMode")
+            and hasattr(agg.RendererAgg, "_prepare_font") and hasattr(agg, "get_font")):
         return agg.FigureCanvasAgg
     layouts: dict = {}
     extents: dict = {}
+    glyphs: dict = {}
+    heights: dict = {}
+    fonts: dict = {}
+    import matplotlib as mpl
 
     class Renderer(agg.RendererAgg):
+        def _font_files(self, prop) -> tuple:
+            """fontManager._find_fonts_by_props(prop), looked up once per font properties and
+            font settings (matplotlib's lookup costs 0.1 ms a text and the figures draw thousands)."""
+            if getattr(self, "_font_settings", None) is None:  # read once a figure: they do not change while it is drawn
+                self._font_settings = (tuple(str(mpl.rcParams[k]) for k in _FONT_PARAMS),
+                                       os.getenv("MPL_IGNORE_SYSTEM_FONTS"))
+            key = (tuple(prop.__dict__.items()), self._font_settings)  # what FontProperties hashes
+            found = fonts.get(key)
+            if found is None:
+                found = tuple(fontManager._find_fonts_by_props(prop))
+                _remember(fonts, key, found)
+            return found
+
         def _text_key(self, s, prop) -> tuple:
-            return (tuple(fontManager._find_fonts_by_props(prop)), prop.get_size_in_points(), self.dpi,
-                    agg.get_hinting_flag(), s)
+            return (self._font_files(prop), prop.get_size_in_points(), self.dpi, agg.get_hinting_flag(), s)
 
         def draw_text(self, gc, x, y, s, prop, angle, ismath=False, mtext=None):
             if ismath:
@@ -110,21 +130,54 @@ def _cached_text_canvas():
                 font = self._prepare_font(prop)
                 items = [(item.ft_object, item.glyph_index, item.x, item.y) for item in
                          font._layout(s, flags=agg.get_hinting_flag(), features=features, language=language)]
-                if len(layouts) >= TEXT_CACHE_ENTRIES:
-                    layouts.clear()
-                layouts[key] = items
-            size = prop.get_size_in_points()
-            self._draw_text_glyphs_and_boxes(gc, x, y, angle, ((ft, size, glyph, 0, 1, dx, dy)
-                                                               for ft, glyph, dx, dy in items), [])
+                _remember(layouts, key, items)
+            self._draw_glyphs(gc, x, y, angle, prop.get_size_in_points(), items)
+
+        def _draw_glyphs(self, gc, x, y, angle, size, items) -> None:
+            """RendererAgg._draw_text_glyphs_and_boxes of these glyphs (no boxes), each glyph's
+            bitmap rendered once per font, size, dpi, rotation, hinting and position within its
+            pixel (1/64 pixel, FreeType's unit): a glyph moved by whole pixels is the same
+            bitmap moved by as many (its outline is translated by whole pixels before it is
+            rasterised), so the pixels are those of rendering it each time."""
+            cos, sin = math.cos(math.radians(angle)), math.sin(math.radians(angle))
+            matrix = (0x10000 * np.array([[cos, -sin], [sin, cos]])).round().astype(int)
+            flags = agg.get_hinting_flag()
+            antialiased = gc.get_antialiased()
+            for ft, glyph, dx, dy in items:  # dy is upwards
+                tx = round(0x40 * (x + dx * cos - dy * sin))
+                ty = round(0x40 * (self.height - y + dx * sin + dy * cos))  # FreeType's y is upwards
+                key = (ft, size, self.dpi, glyph, tuple(matrix.ravel()), tx & 63, ty & 63, flags, antialiased)
+                hit = glyphs.get(key)
+                if hit is None:
+                    ft.set_size(size, self.dpi)
+                    ft._set_transform(matrix, [tx, ty])
+                    bitmap = ft._render_glyph(glyph, flags, agg.RenderMode.NORMAL if antialiased
+                                              else agg.RenderMode.MONO)
+                    buffer = np.array(bitmap.buffer)
+                    if not antialiased:
+                        buffer *= 0xff
+                    hit = (buffer, bitmap.left - (tx >> 6), bitmap.top - (ty >> 6))
+                    _remember(glyphs, key, hit)
+                buffer, left, top = hit
+                # draw_text_image's y is downwards and the bitmap's bottom side
+                self._renderer.draw_text_image(buffer, left + (tx >> 6),
+                                               int(self.height) - (top + (ty >> 6)) + buffer.shape[0], 0, gc)
+
+        def _get_font_height_metrics(self, prop):
+            """(ascent, descent, line gap) in pixels of the font of ``prop``, as
+            matplotlib.text.Text._get_layout reads them from its OS/2 or hhea table (once per
+            font, size and dpi here)."""
+            key = (self._font_files(prop), prop.get_size_in_points(), self.dpi)
+            if key not in heights:
+                _remember(heights, key, _font_height_metrics(agg.get_font(key[0]), key[1], self.dpi))
+            return heights[key]
 
         def get_text_width_height_descent(self, s, prop, ismath):
             if ismath:
                 return super().get_text_width_height_descent(s, prop, ismath)
             key = self._text_key(s, prop)
             if key not in extents:
-                if len(extents) >= TEXT_CACHE_ENTRIES:
-                    extents.clear()
-                extents[key] = super().get_text_width_height_descent(s, prop, ismath)
+                _remember(extents, key, super().get_text_width_height_descent(s, prop, ismath))
             return extents[key]
 
     class Canvas(agg.FigureCanvasAgg):
@@ -137,6 +190,27 @@ def _cached_text_canvas():
             return self.renderer
 
     return Canvas
+
+
+def _remember(cache: dict, key, value) -> None:
+    """cache[key] = value, the cache cleared first when it holds TEXT_CACHE_ENTRIES entries."""
+    if len(cache) >= TEXT_CACHE_ENTRIES:
+        cache.clear()
+    cache[key] = value
+
+
+def _font_height_metrics(font, size_pt: float, dpi: float) -> tuple:
+    """(ascent, descent, line gap) in pixels of an FT2Font at a size and dpi from its OS/2 table
+    (else hhea), as matplotlib.text.Text._get_layout computes them; (None, None, None) when the
+    font has neither table (Text then measures "lp")."""
+    for table_name, gap_key, ascent_key, descent_key in (
+            ("OS/2", "sTypoLineGap", "sTypoAscender", "sTypoDescender"), ("hhea", "lineGap", "ascent", "descent")):
+        table = font.get_sfnt_table(table_name)
+        if table is None:
+            continue
+        scale = 1 / font.get_sfnt_table("head")["unitsPerEm"] * size_pt * dpi / 72
+        return table[ascent_key] * scale, -table[descent_key] * scale, table[gap_key] * scale
+    return None, None, None
 
 
 # An opaque figure is stored as a PNG of at most this many colours (a palette picked per image by
@@ -256,10 +330,14 @@ def _unlog_empty_axes(fig) -> None:
                 axis.set_minor_locator(NullLocator())
 
 
-def png_bytes(fig) -> bytes:
+def png_bytes(fig, overlay: DrawnPixels | None = None) -> bytes:
     """The figure as PNG: the pixels ``fig.savefig(format="png")`` draws at DPI, stored with a
     palette of PNG_COLOURS when the figure is opaque (a third of the RGB size), with no software
     metadata (so the bytes depend on the data only).
+
+    overlay : pixels drawn once (a legend, :func:`drawn_alone`) put where the figure would draw
+        them; :class:`OverlayRefused` when the figure is not the size they were drawn for (it
+        was grown to hold its texts) or its pixels there are not blank: then draw it in.
 
     Every text must lie inside the figure: the figure is grown where one overflows
     (:func:`fit_texts`); one that still does raises :class:`ClippedText` under pytest (or with
@@ -278,6 +356,8 @@ def png_bytes(fig) -> bytes:
 
         warnings.warn(message, stacklevel=2)
     rgba = np.asarray(canvas.buffer_rgba())
+    if overlay is not None:
+        rgba = overlay.put(rgba)
     if bool(np.all(rgba[..., 3] == 255)):
         image = Image.fromarray(np.ascontiguousarray(rgba[..., :3]), "RGB").quantize(
             colors=PNG_COLOURS, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE)
@@ -287,6 +367,64 @@ def png_bytes(fig) -> bytes:
     # zlib's level 9 (PNG_COMPRESS_LEVEL): the same pixels, 7 % fewer bytes than its default
     image.save(buf, format="png", dpi=(DPI, DPI), compress_level=PNG_COMPRESS_LEVEL)  # dpi: as savefig records
     return buf.getvalue()
+
+
+class OverlayRefused(Exception):
+    """Pixels drawn once do not fit this figure (:meth:`DrawnPixels.put`): draw the artist in it."""
+
+
+# Pixels around an artist's extent taken with it (:func:`drawn_alone`): anti-aliased edges.
+OVERLAY_MARGIN_PX = 2
+
+
+class DrawnPixels:
+    """An artist's pixels drawn alone on a blank figure (:func:`drawn_alone`): the block of rows
+    and columns around it in a canvas of ``size`` (width, height) pixels, RGBA, rows from the top.
+
+    Agg draws a pixel from its previous value and what covers it, so on a figure whose pixels in
+    the block are blank (the figure's own background colour), the artist drawn there gives these
+    pixels: :meth:`put` copies them instead of drawing it."""
+
+    def __init__(self, size: tuple[int, int], rows: slice, cols: slice, block: np.ndarray, blank: np.ndarray):
+        self.size, self.rows, self.cols, self.block, self.blank = size, rows, cols, block, blank
+
+    def put(self, rgba: np.ndarray) -> np.ndarray:
+        """``rgba`` (H x W x 4, a drawn figure without the artist) with the artist's pixels: a
+        copy; OverlayRefused when it is another size or not blank under the block."""
+        if (rgba.shape[1], rgba.shape[0]) != self.size:
+            raise OverlayRefused("the figure is not the size the pixels were drawn for")
+        if not np.array_equal(rgba[self.rows, self.cols], np.broadcast_to(self.blank, self.block.shape)):
+            raise OverlayRefused("the figure is not blank under the pixels")
+        out = np.array(rgba)
+        out[self.rows, self.cols] = self.block
+        return out
+
+
+def drawn_alone(size_in: tuple[float, float], add) -> DrawnPixels | None:
+    """The pixels of the artist ``add(fig)`` adds to a blank figure of ``size_in`` inches (and
+    returns), or None when it cannot be drawn apart: it has texts beyond the figure's edge, or it
+    draws outside its extent (every pixel outside the block must stay the background's)."""
+    fig = _figure(*size_in)
+    artist = add(fig)
+    if artist is None:
+        return None
+    canvas = agg_canvas(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    if text_overflow(fig, renderer)[1]:
+        return None
+    rgba = np.asarray(canvas.buffer_rgba())
+    H, W = rgba.shape[:2]
+    box = artist.get_window_extent(renderer)  # pixels, y upwards
+    m = OVERLAY_MARGIN_PX
+    rows = slice(max(0, int(np.floor(H - box.y1)) - m), min(H, int(np.ceil(H - box.y0)) + m))
+    cols = slice(max(0, int(np.floor(box.x0)) - m), min(W, int(np.ceil(box.x1)) + m))
+    blank = rgba[0, 0].copy()
+    outside = np.array(rgba)
+    outside[rows, cols] = blank
+    if not np.all(outside == blank):
+        return None
+    return DrawnPixels((W, H), rows, cols, rgba[rows, cols].copy(), blank)
 
 
 # --- colours and line styles ------------------------------------------------------------------------
@@ -638,17 +776,116 @@ def case_dt(case: str, dt: float, runs: list[dict], physics: rd.CasePhysics | No
     drawn = [lab for lab in all_labels if lab in have]
     legend_w = _legend_width_in(drawn)
     w, h = CASE_PANELS_W_IN + legend_w, CASE_PANELS_H_IN
-    fig = _figure(w, h)
+    fig, axes = _case_figure(w, h)
+    try:
+        handles = _draw_case_runs(axes, loaded, styles(all_labels))
+        if truth_shown is not None:
+            _draw_truth_angular_velocity(axes[3], truth_shown)
+        _scale_case_panels(axes, physics)
+        fig.suptitle(f"{case}, dt = {dt:g} s", fontsize=10, x=0.6 / w, ha="left", y=1 - 0.12 / h)
+        png = _with_legend(fig, handles, drawn, top=1 - 0.45 / h)
+    except BaseException:
+        _forget_case_figure()
+        raise
+    if tuple(fig.get_size_inches()) != (w, h):  # grown to hold its texts: its axes moved
+        _forget_case_figure()
+    return png, notes
+
+
+# The per-case figure of this process, (figure, its four axes), drawn again for the next case and
+# dt (:func:`_case_figure`), or None.
+_CASE_FIGURE = None
+
+
+def _case_figure(w: float, h: float):
+    """case_dt's figure of w x h inches and its four panels, titled and labelled, without lines:
+    the figure drawn before in this process emptied (:func:`_empty_case_panels`) or a new one.
+
+    An axes keeps its tick objects between figures: making a tick (its lines and labels) is a
+    tenth of a figure's drawing, and titles and labels are set once.  What a figure shows is
+    the same on a new or a reused figure (tests/test_report_figures.py compares the bytes)."""
+    global _CASE_FIGURE
+    if _CASE_FIGURE is None:
+        fig = _figure(w, h)
+        _place_case_panels(fig, w, h)
+        axes = [fig.add_subplot(2, 2, k + 1) for k in range(4)]
+        _label_case_panels(axes)
+        _CASE_FIGURE = fig, axes
+        return fig, axes
+    fig, axes = _CASE_FIGURE
+    for legend in list(fig.legends):
+        legend.remove()
+    _empty_case_panels(axes)
+    fig.set_size_inches(w, h)
+    _place_case_panels(fig, w, h)
+    return fig, axes
+
+
+# case_dt's legends drawn once in this process: (what it shows, figure size, top) -> DrawnPixels,
+# or None when it is drawn in its figure each time (:func:`_with_legend`).
+_LEGENDS: dict = {}
+# Legends kept at most (one per set of runs drawn: the default suite's figures have one).
+LEGENDS_KEPT = 64
+
+
+def _with_legend(fig, handles: dict, labs: list[str], top: float) -> bytes:
+    """png_bytes of the figure with its legend (:func:`_legend_right`), whose pixels are drawn once
+    per process for each set of entries, line styles and figure size (the figures of a report
+    show the same runs: a legend is a seventh of a figure's drawing) and copied in."""
+    size = tuple(float(v) for v in fig.get_size_inches())
+    key = (tuple((lab, _line_look(handles[lab])) for lab in labs if lab in handles), size, top)
+    if key not in _LEGENDS:
+        if len(_LEGENDS) >= LEGENDS_KEPT:
+            _LEGENDS.clear()
+        _LEGENDS[key] = drawn_alone(size, lambda f: _legend_right(f, handles, labs, top))
+    if _LEGENDS[key] is not None:
+        try:
+            return png_bytes(fig, overlay=_LEGENDS[key])
+        except OverlayRefused:  # grown to hold its texts, or something drawn where the legend goes
+            pass
+    _legend_right(fig, handles, labs, top)
+    return png_bytes(fig)
+
+
+def _line_look(line) -> tuple:
+    """What a legend entry copies from a line (matplotlib's HandlerLine2D: Line2D.update_from)."""
+    return (line.get_color(), line.get_linestyle(), line.get_linewidth(), line.get_marker(), line.get_markersize(),
+            line.get_fillstyle(), line.get_markeredgecolor(), line.get_markerfacecolor(),
+            line.get_markerfacecoloralt(), line.get_markeredgewidth(), line.get_alpha(), line.get_dash_capstyle(),
+            line.get_solid_capstyle(), line.get_dash_joinstyle(), line.get_solid_joinstyle(), line.get_drawstyle(),
+            line.get_visible(), line.get_gapcolor(), repr(line.get_path_effects()), line.get_sketch_params())
+
+
+def forget_drawn() -> None:
+    """Forget the figure and legends kept for the next per-case figures: the next is drawn anew."""
+    _forget_case_figure()
+    _LEGENDS.clear()
+
+
+def _forget_case_figure() -> None:
+    """The next case_dt draws on a new figure (this one failed, or was grown by fit_texts)."""
+    global _CASE_FIGURE
+    _CASE_FIGURE = None
+
+
+def _place_case_panels(fig, w: float, h: float) -> None:
+    """The four panels' place in a w x h inch figure (set before the lines: envelope() needs the
+    panels' widths in pixels)."""
     fig.subplots_adjust(left=0.6 / w, right=(CASE_PANELS_W_IN - 0.1) / w, top=1 - 0.5 / h, bottom=0.45 / h,
-                        wspace=0.22, hspace=0.38)  # before the lines: the panels' widths, for envelope()
-    axes = [fig.add_subplot(2, 2, k + 1) for k in range(4)]
-    handles = _draw_case_runs(axes, loaded, styles(all_labels))
-    if truth_shown is not None:
-        _draw_truth_angular_velocity(axes[3], truth_shown)
-    _style_case_panels(axes, physics)
-    fig.suptitle(f"{case}, dt = {dt:g} s", fontsize=10, x=0.6 / w, ha="left", y=1 - 0.12 / h)
-    _legend_right(fig, handles, drawn, top=1 - 0.45 / h)
-    return png_bytes(fig), notes
+                        wspace=0.22, hspace=0.38)
+
+
+def _empty_case_panels(axes: list) -> None:
+    """Undo what a figure drew on case_dt's panels: its lines and notes go, each axes is linear
+    with its default tick locators and a new axes' limits (0 to 1, autoscaled when lines are
+    added), with no data limits; titles, labels and tick styles stay (:func:`_label_case_panels`)."""
+    for ax in axes:
+        for artist in [*ax.lines, *ax.texts]:
+            artist.remove()
+        ax.set_yscale("linear")  # default locators and formatters again (a log panel's, or none)
+        ax.relim()
+        ax.set_xlim(0, 1, auto=True)  # a new axes' limits, autoscaled (set_ylim turned that off) once
+        ax.set_ylim(0, 1, auto=True)  # lines are added; an axes left without data keeps them
 
 
 def _load_case_runs(runs: list[dict], physics: rd.CasePhysics | None, out_dir: Path):
@@ -696,7 +933,19 @@ def _line(ax, x, y, log_y: bool = False, marks: float | None = None, **style):
         step = (x[-1] - x[0]) / CASE_MARKS
         at = np.searchsorted(x, x[0] + step * (marks + np.arange(CASE_MARKS)))
         style["markevery"] = sorted(set(int(i) for i in at if i < len(x)))
-    return ax.plot(x, y, **style)[0]
+    return _add_line(ax, x, y, style)
+
+
+def _add_line(ax, x: np.ndarray, y: np.ndarray, style: dict):
+    """``ax.plot(x, y, **style)[0]`` for 1-D float arrays and a style that sets the colour: the same
+    Line2D (a colour given, the property cycle is not read), made directly (plot's argument
+    parsing is two thirds of its cost)."""
+    from matplotlib.lines import Line2D
+
+    line = Line2D(x, y, **style)
+    ax.add_line(line)
+    ax._request_autoscale_view()  # as plot does, for both axes
+    return line
 
 
 def _draw_case_runs(axes: list, loaded: list, sty: dict) -> dict:
@@ -735,24 +984,28 @@ def _draw_truth_angular_velocity(ax, truth) -> None:
         ax.set_ylim(lo - pad, hi + pad)  # a blown-up run must not flatten the truth
 
 
-def _style_case_panels(axes: list, physics: rd.CasePhysics | None) -> None:
-    """Titles, labels and grids of case_dt's panels; the three error panels on log axes capped at
-    LOG_PANEL_TOP, or a note where there is nothing to draw."""
+def _label_case_panels(axes: list) -> None:
+    """Titles, labels and grids of case_dt's panels (the same in every figure)."""
     titles = ("orientation error (rad)", "energy error (rel. to max KE)",
               "angular momentum error (rel. to max |L|)", "world angular velocity (rad/s); truth: wide grey")
-    for k, (ax, title) in enumerate(zip(axes, titles)):
+    for ax, title in zip(axes, titles):
         _title(ax, title, fontsize=9)
         ax.set_xlabel("t (s)", fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(True, alpha=0.3)
-        if k < 3:
-            if any(len(ln.get_xdata()) for ln in ax.lines):
-                _log_axes(ax, y=True)
-                if ax.get_ylim()[1] > LOG_PANEL_TOP:  # a blow-up must not squash the other runs
-                    ax.set_ylim(top=LOG_PANEL_TOP)
-            else:
-                _empty(ax, "needs the case's mass and inertia" if physics is None and k in (1, 2)
-                       else "no positive finite error to draw on a log axis")
+
+
+def _scale_case_panels(axes: list, physics: rd.CasePhysics | None) -> None:
+    """After the lines: the three error panels on log axes capped at LOG_PANEL_TOP, or a note
+    where there is nothing to draw."""
+    for k, ax in enumerate(axes[:3]):
+        if any(len(ln.get_xdata()) for ln in ax.lines):
+            _log_axes(ax, y=True)
+            if ax.get_ylim()[1] > LOG_PANEL_TOP:  # a blow-up must not squash the other runs
+                ax.set_ylim(top=LOG_PANEL_TOP)
+        else:
+            _empty(ax, "needs the case's mass and inertia" if physics is None and k in (1, 2)
+                   else "no positive finite error to draw on a log axis")
 
 
 # --- all figures of report.html -------------------------------------------------------------------
