@@ -40,7 +40,11 @@ FACTS_DIR_VARIABLE = "FREEBODY_ENGINE_FACTS_DIR"
 # The fields of a facts file; a change of their meaning bumps it (older files are then misses).
 FACTS_FORMAT = 2  # 2: supports_batch (freebody sweep's batches)
 _BUILT_IN_PREFIX = "freebody.adapters."
-_memo: dict[tuple, dict | None] = {}  # fingerprint -> facts, this process
+_memo: dict[str, dict | None] = {}  # fingerprint -> facts, this process
+# (engine, entry, import path) -> its fingerprint, this process: a command asks each engine several
+# times (about 1 ms of stat calls each time); a long-lived process with an adapter edited meanwhile
+# has that adapter imported, which is asked directly
+_fingerprints: dict[tuple, str | None] = {}
 
 
 def facts_dir() -> Path:
@@ -111,7 +115,10 @@ def engine_facts(engine: str) -> dict | None:
     entry = registry_entry(name)
     if entry.module in sys.modules or not is_available(name):
         return _live(name)
-    key = fingerprint(name, entry)
+    seen = (name, entry, tuple(sys.path))
+    if seen not in _fingerprints:
+        _fingerprints[seen] = fingerprint(name, entry)
+    key = _fingerprints[seen]
     if key is None:
         return _live(name)
     if key not in _memo:
