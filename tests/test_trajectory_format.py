@@ -132,6 +132,15 @@ def test_shared_rows_are_the_stride_and_the_last_sample():
     assert shared_rows(np.array([0], np.int64)).tolist() == [True]
 
 
+def test_a_run_without_samples(tmp_path):
+    """A run that kept no sample (ended before its first) reads back as empty arrays of its shapes."""
+    empty = _motion(3, 0.1, 5).take(np.zeros(0, np.int64))
+    write_trajectory(tmp_path / "empty.npz", empty, empty, np.zeros(0, np.int64))
+    tr, truth = load_trajectory(tmp_path / "empty.npz")
+    _assert_same(tr, empty)
+    _assert_same(truth, empty)
+
+
 def test_t_off_the_grid_and_a_truth_at_other_times_are_stored(tmp_path):
     """t is left out only when it is sample_index * dt bit for bit, the truth's t only when it is the run's."""
     tr, truth = _motion(11, 0.1, 5), _motion(11, 0.1, 6)

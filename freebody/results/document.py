@@ -260,7 +260,8 @@ def encode_block(block: np.ndarray) -> np.ndarray:
     """A (K, C) float64 block as the uint8 array (8 K C,) a format-2 file stores, losslessly: each
     row's bits XOR the previous row's (a smooth series leaves its sign, exponent and leading mantissa
     bits zero), columns one after another, then the bytes shuffled (the first byte of every value,
-    then the second, ...), which deflate compresses 20-25% better than the raw values."""
+    then the second, ...), which deflate compresses about a fifth smaller than the raw values (the
+    default suite's run samples: 35.1 -> 27.9 MB)."""
     u = np.ascontiguousarray(block, dtype="<f8").view("<u8")
     d = u.copy()
     d[1:] ^= u[:-1]
@@ -277,8 +278,9 @@ def _width(field: str) -> int:
     return max(1, _WIDTH[field])
 
 
-def _block(arrays: list[np.ndarray], rows: int) -> np.ndarray:
-    return np.hstack([a.reshape(rows, -1) for a in arrays]) if arrays else np.zeros((rows, 0))
+def _block(x: Trajectory, fields: list[str], rows: int) -> np.ndarray:
+    """The (rows, C) float64 block of the fields ``fields`` of ``x``, in that order."""
+    return np.hstack([getattr(x, f).reshape(rows, _width(f)) for f in fields]) if fields else np.zeros((rows, 0))
 
 
 def _split(block: np.ndarray, fields: list[str]) -> dict[str, np.ndarray]:
@@ -358,7 +360,7 @@ def write_trajectory(path: Path, tr: Trajectory, truth: Trajectory | None, index
     dt = _grid_dt(tr.t, index)
     fields = [f for f in _COLUMNS if getattr(tr, f) is not None and (f != "t" or dt is None)]
     layout = {"trajectory_format": TRAJECTORY_FORMAT, "dt": dt, "columns": fields, "truth": None}
-    arrays = {"sample_index": index, "samples": encode_block(_block([getattr(tr, f) for f in fields], len(index)))}
+    arrays = {"sample_index": index, "samples": encode_block(_block(tr, fields, len(index)))}
     if truth is not None:
         layout["truth"], arrays["truth_extra"] = _share_truth(path.parent, tr, truth, index)
     arrays[LAYOUT] = np.array(json.dumps(layout, sort_keys=True))
@@ -370,7 +372,7 @@ def _share_truth(folder: Path, tr: Trajectory, truth: Trajectory, index: np.ndar
     (:func:`shared_rows`) goes to the truth file of that content in ``folder`` (written if it is not
     there yet), the rest stays in the run's file."""
     fields = [f for f in _FIELDS if f != "t" or truth.t.tobytes() != tr.t.tobytes()]
-    block = _block([getattr(truth, f) for f in fields], len(index))
+    block = _block(truth, fields, len(index))
     rows = shared_rows(index)
     name = _write_truth_file(folder, index[rows], block[rows], fields) if rows.any() else None
     return {"file": name, "columns": fields}, encode_block(block[~rows])
@@ -632,7 +634,7 @@ def _run_layout(z, what: str) -> dict:
     dt, truth = layout.get("dt"), layout.get("truth")
     columns = layout["columns"]
     if any(f not in columns for f in _FIELDS[1:]) or (dt is None) != ("t" in columns) or not (
-            dt is None or isinstance(dt, (int, float))):
+            dt is None or isinstance(dt, float)):
         raise FileRefused(what, "not a trajectory file (its layout lacks a field or its step)")
     if truth is not None and not (isinstance(truth, dict) and isinstance(truth.get("columns"), list)
                                   and all(f in _FIELDS for f in truth["columns"])
