@@ -30,6 +30,7 @@ from .integrators import INTEGRATORS, canonical_integrator, initial_arrays
 from .problem import Problem
 from .rotations import matrix_from_quat, quat_conjugate, quat_from_rotvec, quat_multiply
 from .sampling import LOAD_SAMPLING_PER_STAGE, check_load_sampling
+from .splitting import principal_frame as splitting_principal_frame
 
 __all__ = ["MapStart", "map_start", "run_map", "map_orientations", "frame_of"]
 
@@ -133,9 +134,22 @@ def _rows(out: Trajectory) -> tuple:
     return out.position, out.quaternion_wxyz, out.linear_velocity, out.angular_velocity
 
 
+def _compiled():
+    """(:mod:`compiled`, :mod:`compiled_engine_maps`), imported on the first run (numba with them)."""
+    global _COMPILED
+    if _COMPILED is None:
+        from . import compiled, compiled_engine_maps
+
+        _COMPILED = compiled, compiled_engine_maps
+    return _COMPILED
+
+
+_COMPILED = None
+
+
 def _run_reference(start: MapStart, name: str, steps: int, rows: tuple, ortho) -> None:
     """compiled.simulate_compiled's arguments and row 0, from the prepared start."""
-    from . import compiled as C
+    C = _compiled()[0]
 
     M, I_b, I_inv, x, q, R, p, L, v, w = start.ref
     tx, tq, tp, tL, tI_inv, tg = start.ref_tuples
@@ -152,9 +166,7 @@ def _run_reference(start: MapStart, name: str, steps: int, rows: tuple, ortho) -
         out_x[0], out_q[0], out_v[0] = x, q, p / M
         out_w[0] = np.array(start.problem.initial.angular_velocity, float)
         if name == "symplectic-splitting":
-            from .splitting import principal_frame
-
-            frame = frame_of(principal_frame, I_b)
+            frame = frame_of(splitting_principal_frame, I_b)
             C.run_splitting(tx, tq, tp, tL, dt, steps, M, C.mat(frame.axes), C.vec(frame.moments), tI_inv,
                             tg, loads, *rows)
         else:
@@ -163,8 +175,8 @@ def _run_reference(start: MapStart, name: str, steps: int, rows: tuple, ortho) -
 
 def _run_engine_map(start: MapStart, name: str, steps: int, per_stage: bool, rows: tuple) -> None:
     """compiled_engine_maps.simulate_compiled_engine_map's arguments and row 0, from the prepared start."""
-    from . import compiled_engine_maps as E
-    from .compiled import mat, vec
+    C, E = _compiled()
+    mat, vec = C.mat, C.vec
 
     M, I_b, I_inv, x, q, v, w, g = start.given
     tx, tq, tv, tw, tI_b, tI_inv, tg = start.given_tuples
