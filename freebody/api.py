@@ -20,12 +20,14 @@ def run_case(case: str | Problem, engine: str = "reference", integrator: str | N
     selection is a single run, else a list of them.
     """
     from .run import TruthCache, execute
+    from .run.worker import import_quietly
 
     problem = case if isinstance(case, Problem) else load_case(case)
     engines = select_engines([engine])
     specs = expand([problem], engines, [integrator] if integrator else None,
                    [dt] if dt is not None else None, duration,
                    [precision] if precision is not None else None)
+    import_quietly(engines)  # an adapter's import banner is no run's output (as in freebody run)
     cache = TruthCache()
     outs = [execute(s, cache) for s in specs]
     return outs[0] if len(outs) == 1 else outs

@@ -373,3 +373,22 @@ def test_a_worker_imports_mujoco_without_its_opengl_back_end(user_setting, expec
     assert (gl, imported) == (expected, "True")
     if user_setting is None:
         assert glfw == "False"
+
+
+@pytest.mark.skipif(not base.is_available("pybullet"), reason="pybullet not installed")
+def test_an_engine_first_imported_by_its_run_keeps_its_banner_out_of_the_run(tmp_path):
+    """With the facts cached nothing imports PyBullet before its first run (which prints a build
+    banner when imported): the Python API and a serial runner import it quietly first, so the run's
+    engine_output is what the engine printed while running, as in a worker."""
+    import os
+
+    code = ("import sys\nfrom freebody.api import run_case\n"
+            "out = run_case('dzhanibekov', 'pybullet', 'multibody', dt=0.01, duration=0.02)\n"
+            "print(repr(out.result.engine_output))\n")
+    env = {**os.environ, "FREEBODY_ENGINE_FACTS_DIR": str(tmp_path)}
+    outs = []
+    for _ in range(2):  # the first asks the adapter (imported: its banner discarded), the second the cache
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+        assert r.returncode == 0, r.stderr
+        outs.append(r.stdout.strip().splitlines()[-1])
+    assert list(tmp_path.glob("pybullet-*.json")) and outs == ["[]", "[]"]

@@ -131,12 +131,16 @@ class Runner:
         self.cache = GroupTruthCache(Path(store) if store else None)
         self.started = started
         self._problems: dict = {}
+        self._imported: set[str] = set()  # engines whose adapter this runner imported quietly
 
     def run(self, task: RunTask) -> dict:
         # one Problem object per key, so the cache (keyed by object) hits across tasks
         problem = self._problems.setdefault(task.problem_key, task.spec.problem)
         spec = replace(task.spec, problem=problem) if problem is not task.spec.problem else task.spec
         self.cache.enter(problem, task.problem_key, spec.dt, spec.steps, share=task.share)
+        if spec.engine not in self._imported:  # before its time limit counts, as a worker's start
+            import_quietly([spec.engine])
+            self._imported.add(spec.engine)
         self._prepare_truth(spec)
         if self.started is not None:
             self.started(task.index)
@@ -168,12 +172,9 @@ class Runner:
 
 
 def preimport(engines) -> None:
-    """Import the adapters of the available engines among ``engines`` (their import banners are
-    discarded), so that a run's captured engine output does not depend on whether it was the
-    first run of its engine in its process.  Each engine's ``EngineEntry.worker_env`` is set first
-    where the environment does not set it (MuJoCo's import without an OpenGL back-end)."""
-    from ..adapters.base import UnknownEngine, is_available, load_adapter, registry_entry
-    from ..adapters.capture import capture_output
+    """A worker's start: each engine's ``EngineEntry.worker_env`` set where the environment does
+    not set it (MuJoCo's import without an OpenGL back-end), then :func:`import_quietly`."""
+    from ..adapters.base import UnknownEngine, registry_entry
 
     for name in engines:
         try:
@@ -181,6 +182,16 @@ def preimport(engines) -> None:
                 os.environ.setdefault(var, value)
         except UnknownEngine:  # the run records it
             pass
+    import_quietly(engines)
+
+
+def import_quietly(engines) -> None:
+    """Import the adapters of the available engines among ``engines`` with their import banners
+    discarded, so that a run's captured engine output does not depend on whether it was the first
+    run of its engine in its process (the parent no longer imports them: freebody.envs.facts)."""
+    from ..adapters.base import is_available, load_adapter
+    from ..adapters.capture import capture_output
+
     for name in engines:
         try:
             if is_available(name):
