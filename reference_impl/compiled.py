@@ -45,6 +45,7 @@ from collections import namedtuple
 
 import numpy as np
 from numba import njit, objmode
+from numba.core.registry import CPUDispatcher
 
 from . import rotations
 from .compiled_lock import serialize_if_asked
@@ -58,7 +59,38 @@ __all__ = ["Loads", "loads_of", "simulate_compiled", "wrench", "euler_matrix_ste
            "implicit_midpoint_step", "rkmk4_step", "matrix_outputs"]
 
 # Every function here: compiled on first use, cached on disk, inf/NaN rather than exceptions.
+# ``jit``: a function Python calls (the drivers); ``helper`` (below): one only compiled code calls.
 jit = njit(cache=True, error_model="numpy")
+HELPER_OPTIONS = {"nopython": True, "error_model": "numpy", "no_cpython_wrapper": True,
+                  "no_cfunc_wrapper": True}
+
+
+class CompiledHelper(CPUDispatcher):
+    """A numba function for compiled callers only: compiled without the CPython and C wrappers
+    that let Python call it.  Those wrappers unbox and box every tuple argument and result, and
+    LLVM optimises and emits them with the function: they were about 30% of a cold first
+    compilation (40 -> 29 s CPU for what the quick start compiles, 1 process) and no driver uses
+    them.  Called from Python (tests, an interactive session) it runs through a second, plainly
+    jitted copy of the same source, compiled on that first call (not cached): the same code,
+    the same numbers.  A compiled caller links this dispatcher's own compilation, as any."""
+
+    def __call__(self, *args):
+        entry = self.__dict__.get("python_entry")
+        if entry is None:
+            entry = self.python_entry = njit(error_model="numpy")(self.py_func)
+        return entry(*args)
+
+
+def helper(fn):
+    """``@jit`` for a function only compiled code calls (:class:`CompiledHelper`): cached on disk
+    the same way.  ``NUMBA_DISABLE_JIT=1``: the plain Python function, as ``njit`` gives."""
+    from numba.core import config
+
+    if config.DISABLE_JIT:
+        return fn
+    disp = CompiledHelper(py_func=fn, locals={}, targetoptions=dict(HELPER_OPTIONS))
+    disp.enable_caching()
+    return disp
 
 # Workers of one pool compile each function once between them (compiled_lock: a no-op unless
 # the pool asks for it).
@@ -78,97 +110,97 @@ NEWTON_MAX_ITERATIONS = 100  # a safety bound: measured at most 6 (condition 1e1
 
 # --- vectors (x, y, z), quaternions (w, x, y, z), matrices (row, row, row) ------------------------
 
-@jit
+@helper
 def add(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
 
-@jit
+@helper
 def sub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-@jit
+@helper
 def scale(s, a):
     return (s * a[0], s * a[1], s * a[2])
 
 
-@jit
+@helper
 def div(a, s):
     return (a[0] / s, a[1] / s, a[2] / s)
 
 
-@jit
+@helper
 def add4(a, b):
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3])
 
 
-@jit
+@helper
 def scale4(s, a):
     return (s * a[0], s * a[1], s * a[2], s * a[3])
 
 
-@jit
+@helper
 def dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@jit
+@helper
 def norm(a):
     return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
 
 
-@jit
+@helper
 def cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-@jit
+@helper
 def transpose(A):
     return ((A[0][0], A[1][0], A[2][0]), (A[0][1], A[1][1], A[2][1]), (A[0][2], A[1][2], A[2][2]))
 
 
-@jit
+@helper
 def matvec(A, v):
     """A v."""
     return (dot(A[0], v), dot(A[1], v), dot(A[2], v))
 
 
-@jit
+@helper
 def matmul(A, B):
     """A B."""
     Bt = transpose(B)
     return (matvec(Bt, A[0]), matvec(Bt, A[1]), matvec(Bt, A[2]))
 
 
-@jit
+@helper
 def mat_add(A, B):
     return (add(A[0], B[0]), add(A[1], B[1]), add(A[2], B[2]))
 
 
-@jit
+@helper
 def mat_sub(A, B):
     return (sub(A[0], B[0]), sub(A[1], B[1]), sub(A[2], B[2]))
 
 
-@jit
+@helper
 def mat_scale(s, A):
     return (scale(s, A[0]), scale(s, A[1]), scale(s, A[2]))
 
 
-@jit
+@helper
 def skew(w):
     """[w]: [w] v = w x v."""
     return ((0.0, -w[2], w[1]), (w[2], 0.0, -w[0]), (-w[1], w[0], 0.0))
 
 
-@jit
+@helper
 def quat_normalize(q):
     n = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     return (q[0] / n, q[1] / n, q[2] / n, q[3] / n)
 
 
-@jit
+@helper
 def quat_multiply(a, b):
     """Hamilton product a * b: rotate by b, then by a."""
     aw, ax, ay, az = a
@@ -179,7 +211,7 @@ def quat_multiply(a, b):
             aw * bz + ax * by - ay * bx + az * bw)
 
 
-@jit
+@helper
 def matrix_from_quat(q):
     """R(q), body -> world (q normalised here)."""
     w, x, y, z = quat_normalize(q)
@@ -188,7 +220,7 @@ def matrix_from_quat(q):
             (2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)))
 
 
-@jit
+@helper
 def quat_from_rotvec(phi):
     """Exp: the unit quaternion of the rotation vector phi (axis * angle, rad); a series for small
     angles (as rotations.quat_from_rotvec)."""
@@ -201,7 +233,7 @@ def quat_from_rotvec(phi):
     return (math.cos(half), k * phi[0], k * phi[1], k * phi[2])
 
 
-@jit
+@helper
 def gram_schmidt(R):
     """The columns of R re-orthonormalised by classical Gram-Schmidt, in column order."""
     M = transpose(R)  # rows of M: the columns of R
@@ -213,7 +245,7 @@ def gram_schmidt(R):
     return transpose((c0, c1, c2))
 
 
-@jit
+@helper
 def _pivot(a, b, c, col):
     """Rows (a, b, c) with the pivot row first: the first row with the largest |entry| in column
     col, swapped with row a (as LAPACK's partial pivoting)."""
@@ -224,7 +256,7 @@ def _pivot(a, b, c, col):
     return a, b, c
 
 
-@jit
+@helper
 def _eliminate(r, pivot_row, col):
     """r - (r[col] / pivot_row[col]) pivot_row: row r of [J | b] with column col zeroed."""
     m = r[col] / pivot_row[col]
@@ -232,7 +264,7 @@ def _eliminate(r, pivot_row, col):
             r[3] - m * pivot_row[3])
 
 
-@jit
+@helper
 def solve(J, b):
     """J^-1 b by Gaussian elimination with partial pivoting on [J | b] (numpy: LAPACK's dgesv)."""
     r0 = (J[0][0], J[0][1], J[0][2], b[0])
@@ -249,7 +281,7 @@ def solve(J, b):
     return (x0, x1, x2)
 
 
-@jit
+@helper
 def inverse_transpose(X):
     """X^-T, the cofactor matrix of X over det X."""
     a, b, c = X
@@ -258,12 +290,12 @@ def inverse_transpose(X):
     return mat_scale(1.0 / det, cof)
 
 
-@jit
+@helper
 def frobenius(A):
     return math.sqrt(dot(A[0], A[0]) + dot(A[1], A[1]) + dot(A[2], A[2]))
 
 
-@jit
+@helper
 def nearest_rotation(A):
     """The rotation closest to A in the Frobenius norm: the orthogonal polar factor of A, by
     Newton's iteration X <- (g X + (g X)^-T) / 2 (Higham 1986), g = sqrt(||X^-1|| / ||X||) while far
@@ -296,7 +328,7 @@ def _numpy_nearest_rotation(A: np.ndarray) -> np.ndarray:
     return rotations.nearest_rotation(A)
 
 
-@jit
+@helper
 def _nearest_rotation_svd(A):
     """rotations.nearest_rotation (SVD), called back in numpy: only a blown-up matrix gets here,
     and numba's own SVD would add seconds to every first compilation."""
@@ -309,7 +341,7 @@ def _nearest_rotation_svd(A):
     return ((N[0, 0], N[0, 1], N[0, 2]), (N[1, 0], N[1, 1], N[1, 2]), (N[2, 0], N[2, 1], N[2, 2]))
 
 
-@jit
+@helper
 def quat_from_matrix(R):
     """Unit quaternion with w >= 0 of a rotation matrix (Shepperd's method, as
     rotations.quat_from_matrix: the largest of 4 w^2, 4 x^2, 4 y^2, 4 z^2 picks the formula)."""
@@ -335,14 +367,14 @@ def quat_from_matrix(R):
     return scale4(-1.0, q) if q[0] < 0.0 else q
 
 
-@jit
+@helper
 def orthonormality_error(R):
     """||R^T R - 1||_F."""
     E = mat_sub(matmul(transpose(R), R), ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)))
     return frobenius(E)
 
 
-@jit
+@helper
 def omega_world(R, I_inv, L):
     """w = R I_b^-1 R^T L, world."""
     return matvec(matmul(matmul(R, I_inv), transpose(R)), L)
@@ -385,12 +417,12 @@ def loads_of(problem: Problem, dt: float) -> Loads:
                  body_torque, kind, arm)
 
 
-@jit
+@helper
 def _row(a, i):
     return (a[i, 0], a[i, 1], a[i, 2])
 
 
-@jit
+@helper
 def segment_of(k, loads):
     """The segment of step k: the last s with loads.k0[s] <= k."""
     s = len(loads.k0) - 1
@@ -399,13 +431,13 @@ def segment_of(k, loads):
     return s
 
 
-@jit
+@helper
 def segment_end(s, steps, loads):
     """One past the last step of segment s within a run of ``steps`` steps."""
     return steps if s + 1 == len(loads.k0) else min(steps, loads.k0[s + 1])
 
 
-@jit
+@helper
 def wrench(k, x, R, loads):
     """(force (3,) N world, torque about the COM (3,) N m world) of the loads of step k at COM
     position x and rotation R (body -> world), gravity excluded: Problem.wrench, summed in case
@@ -413,7 +445,7 @@ def wrench(k, x, R, loads):
     return segment_wrench(segment_of(k, loads), x, R, loads)
 
 
-@jit
+@helper
 def segment_wrench(s, x, R, loads):
     """:func:`wrench` of any step of segment s (a driver looks the segment up once per segment)."""
     f = (0.0, 0.0, 0.0)
@@ -432,7 +464,7 @@ def segment_wrench(s, x, R, loads):
 
 # --- one step of each scheme (integrators.*_step, same arguments but loads for wrench) ------------
 
-@jit
+@helper
 def euler_matrix_step(k, x, R, p, L, dt, M, I_inv, Mg, loads, gram):
     """Explicit Euler on (x, R, p, L), optionally Gram-Schmidt on R after the step."""
     f, tau = wrench(k, x, R, loads)
@@ -446,7 +478,7 @@ def euler_matrix_step(k, x, R, p, L, dt, M, I_inv, Mg, loads, gram):
     return x_new, R_new, p_new, L_new
 
 
-@jit
+@helper
 def rigid_body_derivative(k, x, q, p, L, M, I_inv, g, loads):
     """dY/dt = (p / M, 1/2 (0, w) * q, f + M g, tau) for Y = (x, q, p, L) on step k."""
     R = matrix_from_quat(q)
@@ -456,7 +488,7 @@ def rigid_body_derivative(k, x, q, p, L, M, I_inv, g, loads):
     return div(p, M), dq, add(f, scale(M, g)), tau
 
 
-@jit
+@helper
 def euler_quat_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     """Explicit Euler on (x, q, p, L), q renormalised after the step."""
     dx, dq, dp, dL = rigid_body_derivative(k, x, q, p, L, M, I_inv, g, loads)
@@ -464,7 +496,7 @@ def euler_quat_step(k, x, q, p, L, dt, M, I_inv, g, loads):
             add(p, scale(dt, dp)), add(L, scale(dt, dL)))
 
 
-@jit
+@helper
 def lie_euler_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     """Momenta first (kick), then x and q with the new velocities: q+ = Exp(h w+) q (world frame)."""
     R = matrix_from_quat(q)
@@ -477,25 +509,25 @@ def lie_euler_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     return x, q, p, L
 
 
-@jit
+@helper
 def _stage(x, q, p, L, c, d):
     """(x, q, p, L) + c d for a derivative d = (dx, dq, dp, dL)."""
     return add(x, scale(c, d[0])), add4(q, scale4(c, d[1])), add(p, scale(c, d[2])), add(L, scale(c, d[3]))
 
 
-@jit
+@helper
 def _rk4_sum(y, h6, a, b, c, e):
     """y + h/6 (a + 2 b + 2 c + e), 3-vectors."""
     return add(y, scale(h6, add(add(add(a, scale(2.0, b)), scale(2.0, c)), e)))
 
 
-@jit
+@helper
 def _rk4_sum4(y, h6, a, b, c, e):
     """y + h/6 (a + 2 b + 2 c + e), quaternions."""
     return add4(y, scale4(h6, add4(add4(add4(a, scale4(2.0, b)), scale4(2.0, c)), e)))
 
 
-@jit
+@helper
 def rk4_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     """Classic RK4 on (x, q, p, L), q renormalised after the step; every stage sees the loads of
     step k, their torque arms at the stage's state."""
@@ -512,7 +544,7 @@ def rk4_step(k, x, q, p, L, dt, M, I_inv, g, loads):
             _rk4_sum(p, h6, k1[2], k2[2], k3[2], k4[2]), _rk4_sum(L, h6, k1[3], k2[3], k3[3], k4[3]))
 
 
-@jit
+@helper
 def semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro):
     """The engines' map on (x, q, v, w_b), w_b in the body frame: explicit or linearised implicit
     gyroscopic term, then v, x, and q+ = q Exp(h w_b+)."""
@@ -522,14 +554,14 @@ def semi_implicit_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gy
     return x, q, v, w_b
 
 
-@jit
+@helper
 def semi_implicit_velocities(k, x, R, v, w_b, dt, M, I_b, I_inv, g, loads, implicit_gyro):
     """integrators.semi_implicit_velocities: (x+, v+, w_b+) at the orientation R."""
     f, tau = wrench(k, x, R, loads)
     return semi_implicit_update(f, tau, x, R, v, w_b, dt, M, I_b, I_inv, g, implicit_gyro)
 
 
-@jit
+@helper
 def semi_implicit_update(f, tau, x, R, v, w_b, dt, M, I_b, I_inv, g, implicit_gyro):
     """:func:`semi_implicit_velocities` of a step whose wrench (f, tau) (N, N m, world) is given."""
     tau_b = matvec(transpose(R), tau)
@@ -544,7 +576,7 @@ def semi_implicit_update(f, tau, x, R, v, w_b, dt, M, I_b, I_inv, g, implicit_gy
     return x, v, w_b
 
 
-@jit
+@helper
 def _axis_turn(q, L, h, part, a, I_i, I_2):
     """A_i of splitting.free_rotation: q Exp(part h (1/I_i - 1/I_2) Pi_i a), Pi_i = a . R^T L."""
     Pi_i = dot(a, matvec(transpose(matrix_from_quat(q)), L))
@@ -552,7 +584,7 @@ def _axis_turn(q, L, h, part, a, I_i, I_2):
     return quat_multiply(q, quat_from_rotvec(scale(part * h * rate, a)))
 
 
-@jit
+@helper
 def free_rotation(q, L, h, axes, moments):
     """splitting.free_rotation: S(h) A_1(h/2) A_3(h) A_1(h/2) (splitting.SPLITTING_SEQUENCE);
     axes: the principal axes (rows, body frame), moments: I_1 <= I_2 <= I_3."""
@@ -564,7 +596,7 @@ def free_rotation(q, L, h, axes, moments):
     return quat_normalize(q)
 
 
-@jit
+@helper
 def splitting_step(k, x, q, p, L, dt, M, axes, moments, g, loads):
     """splitting.splitting_step: kick (half of step k's impulse at the start state), drift (x, and
     q by free_rotation), kick (the other half at the end state)."""
@@ -581,7 +613,7 @@ def splitting_step(k, x, q, p, L, dt, M, axes, moments, g, loads):
 
 # --- implicit-midpoint and rkmk4 (lie_integrators) ------------------------------------------------
 
-@jit
+@helper
 def midpoint_momentum(Pi, h, I_inv):
     """lie_integrators.midpoint_momentum: Pi+ = Pi + h Pi_mid x I_b^-1 Pi_mid by Newton from Pi+ = Pi
     (the same tolerance and bound); returns w_mid = I_b^-1 Pi_mid of the accepted Pi+."""
@@ -600,13 +632,13 @@ def midpoint_momentum(Pi, h, I_inv):
     return matvec(I_inv, scale(0.5, add(Pi, Pi_new)))
 
 
-@jit
+@helper
 def cayley_quat(u):
     """cay([u]) as a unit quaternion: (1, u/2) / |(1, u/2)|."""
     return quat_normalize((1.0, 0.5 * u[0], 0.5 * u[1], 0.5 * u[2]))
 
 
-@jit
+@helper
 def implicit_midpoint_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     """lie_integrators.implicit_midpoint_step: kick, drift (Pi = R^T L by the implicit midpoint rule,
     q+ = q cay(h w_mid)), kick."""
@@ -623,14 +655,14 @@ def implicit_midpoint_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     return x, q, p, L
 
 
-@jit
+@helper
 def dexpinv_world(u, w):
     """lie_integrators.dexpinv_world: w - 1/2 u x w + 1/12 u x (u x w)."""
     uw = cross(u, w)
     return add(sub(w, scale(0.5, uw)), div(cross(u, uw), 12.0))
 
 
-@jit
+@helper
 def _rkmk_slopes(k, x, q, p, L, M, I_inv, g, loads):
     """(dx, w (world), dp, dL) at the stage state (x, q, p, L) of step k."""
     R = matrix_from_quat(q)
@@ -638,7 +670,7 @@ def _rkmk_slopes(k, x, q, p, L, M, I_inv, g, loads):
     return div(p, M), omega_world(R, I_inv, L), add(f, scale(M, g)), tau
 
 
-@jit
+@helper
 def _rkmk_stage(k, x, q, p, L, dt, c, d, K, M, I_inv, g, loads):
     """Stage at h c times the previous stage's slopes d (dx, w, dp, dL) and orientation slope K:
     its slopes, the orientation's passed through dexp^-1."""
@@ -648,14 +680,14 @@ def _rkmk_stage(k, x, q, p, L, dt, c, d, K, M, I_inv, g, loads):
     return (dx, w, dp, dL), dexpinv_world(u, w)
 
 
-@jit
+@helper
 def rkmk_sum(y, dt, a, b, c, e):
     """y + h (b_1 a + b_2 b + b_3 c + b_4 e) in RK4_B's order of operations."""
     b1, b2, b3, b4 = RK4_B
     return add(y, scale(dt, add(add(add(scale(b1, a), scale(b2, b)), scale(b3, c)), scale(b4, e))))
 
 
-@jit
+@helper
 def rkmk4_step(k, x, q, p, L, dt, M, I_inv, g, loads):
     """lie_integrators.rkmk4_step: classic RK4 on (x, p, L), RKMK4 on q; loads at every stage."""
     d1 = _rkmk_slopes(k, x, q, p, L, M, I_inv, g, loads)
@@ -669,7 +701,7 @@ def rkmk4_step(k, x, q, p, L, dt, M, I_inv, g, loads):
             rkmk_sum(p, dt, d1[2], d2[2], d3[2], d4[2]), rkmk_sum(L, dt, d1[3], d2[3], d3[3], d4[3]))
 
 
-@jit
+@helper
 def matrix_outputs(R, L, I_inv):
     """What a matrix integrator reports of its R and L: the quaternion of the nearest rotation,
     w = R I_b^-1 R^T L (world) and ||R^T R - 1||_F."""
@@ -678,7 +710,7 @@ def matrix_outputs(R, L, I_inv):
 
 # --- whole runs: a loop over the steps, each state written into the output rows -----------------
 
-@jit
+@helper
 def put_row(out, k, a):
     """out[k, :] = a, element by element (compiled code; also the compiled engine maps')."""
     for i in range(len(a)):

@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from .compiled import (add, add4, cross, div, dot, jit, loads_of, mat, mat_add, mat_scale, mat_sub, matmul,
-                       matrix_from_quat, matvec, put_row, quat_from_rotvec, quat_multiply, scale, scale4,
+from .compiled import (add, add4, cross, div, dot, helper, jit, loads_of, mat, mat_add, mat_scale, mat_sub,
+                       matmul, matrix_from_quat, matvec, put_row, quat_from_rotvec, quat_multiply, scale, scale4,
                        semi_implicit_velocities, skew, sub, transpose, vec, wrench)
 from .conventions import Trajectory
 from .engine_maps import (BULLET_ANGULAR_MOTION_THRESHOLD, BULLET_SERIES_BELOW, BULLET_SIMD_EPSILON,
@@ -34,7 +34,7 @@ _B1, _B2, _B3, _B4 = RK4_B
 
 # --- MuJoCo RK4 ----------------------------------------------------------------------------------
 
-@jit
+@helper
 def _mj_normalize4(q):
     norm = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
     if abs(norm - 1.0) > MJ_MINVAL:
@@ -42,7 +42,7 @@ def _mj_normalize4(q):
     return q
 
 
-@jit
+@helper
 def mujoco_quat_integrate(q, w, h, normalize_first):
     """engine_maps.mujoco_quat_integrate: q * Exp(h w), MuJoCo's way."""
     norm = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
@@ -58,7 +58,7 @@ def mujoco_quat_integrate(q, w, h, normalize_first):
     return _mj_normalize4(quat_multiply(q, dq))
 
 
-@jit
+@helper
 def dexpinv(u, w):
     """engine_maps.dexpinv: w + 1/2 u x w + c(|u|) u x (u x w)."""
     t = math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
@@ -66,7 +66,7 @@ def dexpinv(u, w):
     return add(add(w, scale(0.5, cross(u, w))), scale(c, cross(u, cross(u, w))))
 
 
-@jit
+@helper
 def _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau):
     """(f / M + g, I^-1 (R(q)^T tau - w_b x I w_b))."""
     R = matrix_from_quat(q)
@@ -74,7 +74,7 @@ def _mj_acceleration(q, w_b, M, I_b, I_inv, g, f, tau):
     return add(div(f, M), g), matvec(I_inv, rhs)
 
 
-@jit
+@helper
 def _mj_stage(q, v, w_b, h, c, K_prev, a_prev, alpha_prev, M, I_b, I_inv, g, f, tau, munthe_kaas,
               normalize_first):
     """Stage i of mujoco_rk4_step from stage i-1's slopes: (v_i, K_i, a_i, alpha_i)."""
@@ -87,13 +87,13 @@ def _mj_stage(q, v, w_b, h, c, K_prev, a_prev, alpha_prev, M, I_b, I_inv, g, f, 
     return v_i, K_i, a_i, alpha_i
 
 
-@jit
+@helper
 def _rk4_combine(s1, s2, s3, s4):
     """b_1 s_1 + b_2 s_2 + b_3 s_3 + b_4 s_4, summed left to right."""
     return add(add(add(scale(_B1, s1), scale(_B2, s2)), scale(_B3, s3)), scale(_B4, s4))
 
 
-@jit
+@helper
 def _mj_stage_loads(k, x, q, h, c, v_prev, K_prev, loads, normalize_first, f, tau, per_stage):
     """The wrench stage i of mujoco_rk4_step sees: the loads of step k at the stage's state
     (x + h (c v_{i-1}), R(q_i)) when ``per_stage``, else (f, tau) as given (the step's start)."""
@@ -103,7 +103,7 @@ def _mj_stage_loads(k, x, q, h, c, v_prev, K_prev, loads, normalize_first, f, ta
     return wrench(k, add(x, scale(h, scale(c, v_prev))), matrix_from_quat(q_i), loads)
 
 
-@jit
+@helper
 def mujoco_rk4_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads, munthe_kaas, normalize_first,
                     per_stage):
     """engine_maps.rkmk4_body_step (munthe_kaas, normalize_first) and rk4_body_exp_step (neither):
@@ -143,7 +143,7 @@ def run_mujoco_rk4(x, q, v, w_b, dt, steps, M, I_b, I_inv, g, loads, munthe_kaas
 
 # --- PyBullet maximal ----------------------------------------------------------------------------
 
-@jit
+@helper
 def solve33(J, b):
     """engine_maps.solve33: Bullet's Cramer's rule on J's columns."""
     Jt = transpose(J)
@@ -168,7 +168,7 @@ def bullet_matrix_from_quat(q):
             (xz - wy, yz + wx, 1.0 - (xx + yy)))
 
 
-@jit
+@helper
 def _quat_from_matrix_about(m, i):
     """The quaternion (wxyz) of a rotation matrix with no positive trace, from its largest diagonal
     entry i (Shoemake's branch, as Bullet's getRotation and Eigen both compute it; they differ only
@@ -188,7 +188,7 @@ def _quat_from_matrix_about(m, i):
     return (qw, qj, qk, qi)
 
 
-@jit
+@helper
 def bullet_quat_from_matrix(m):
     """engine_maps.bullet_quat_from_matrix (btMatrix3x3::getRotation), wxyz."""
     trace = m[0][0] + m[1][1] + m[2][2]
@@ -204,14 +204,14 @@ def bullet_quat_from_matrix(m):
     return _quat_from_matrix_about(m, i)
 
 
-@jit
+@helper
 def bullet_quat_rotate(q, u):
     """engine_maps.bullet_quat_rotate: q (0, u) q^-1."""
     p = quat_multiply(quat_multiply(q, (0.0, u[0], u[1], u[2])), (q[0], -q[1], -q[2], -q[3]))
     return (p[1], p[2], p[3])
 
 
-@jit
+@helper
 def bullet_integrate_rotation(B, w, h):
     """engine_maps.bullet_integrate_rotation: setRotation(normalize(dq * getRotation(B)))."""
     a2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
@@ -227,7 +227,7 @@ def bullet_integrate_rotation(B, w, h):
     return bullet_matrix_from_quat(p)
 
 
-@jit
+@helper
 def implicit_gyro_split_torque_step(k, x, B, v, w, dt, M, moments, Vt, g, loads):
     """engine_maps.implicit_gyro_split_torque_step (PyBullet maximal); B the principal basis."""
     h = dt
@@ -265,7 +265,7 @@ def run_bullet_maximal(x, B, v, w, dt, steps, M, moments, Vt, q_V_inv, g, loads,
 
 # --- DART ----------------------------------------------------------------------------------------
 
-@jit
+@helper
 def dart_exp_map_rot(phi):
     """engine_maps.dart_exp_map_rot: Rodrigues, or I + [phi] + 1/2 [phi]^2 below 1e-3 rad."""
     t = math.sqrt(phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2])
@@ -277,7 +277,7 @@ def dart_exp_map_rot(phi):
     return mat_add(mat_add(eye, mat_scale(math.sin(t) / t, S)), mat_scale((1.0 - math.cos(t)) / (t * t), S2))
 
 
-@jit
+@helper
 def _eigen_quat_from_matrix(m):
     """engine_maps._eigen_quat_from_matrix (Eigen's Shoemake), wxyz."""
     tr = m[0][0] + m[1][1] + m[2][2]
@@ -294,7 +294,7 @@ def _eigen_quat_from_matrix(m):
     return _quat_from_matrix_about(m, i)
 
 
-@jit
+@helper
 def dart_log_map(R):
     """engine_maps.dart_log_map: Eigen::AngleAxisd(R).angle() * axis()."""
     q = _eigen_quat_from_matrix(R)
@@ -306,11 +306,12 @@ def dart_log_map(R):
     return scale(angle, vec_)
 
 
-@jit
+@helper
 def explicit_gyro_truncated_exp_step(k, x, phi, v, w_b, dt, M, I_b, I_inv, g, loads):
     """engine_maps.explicit_gyro_truncated_exp_step (DART)."""
     R = dart_exp_map_rot(phi)
-    x, v, w_b = semi_implicit_velocities(k, x, R, v, w_b, dt, M, I_b, I_inv, g, loads, False)
+    # bool(False): typed bool, as semi_implicit_step's flag (a literal False compiles a second copy)
+    x, v, w_b = semi_implicit_velocities(k, x, R, v, w_b, dt, M, I_b, I_inv, g, loads, bool(False))
     phi = dart_log_map(matmul(R, dart_exp_map_rot(scale(dt, w_b))))
     return x, phi, v, w_b
 
@@ -328,7 +329,7 @@ def run_dart(x, phi, v, w_b, dt, steps, M, I_b, I_inv, g, loads, out_x, out_q, o
 
 # --- PhysX 5 (SAPIEN) ----------------------------------------------------------------------------
 
-@jit
+@helper
 def physx_integrate_rotation(q, w, h):
     """engine_maps.physx_integrate_rotation: normalize(dq * q), w world."""
     a2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
@@ -340,7 +341,7 @@ def physx_integrate_rotation(q, w, h):
     return scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
 
 
-@jit
+@helper
 def physx_gyroscopic_velocity(q, w, moments, h):
     """engine_maps.physx_gyroscopic_velocity: explicit, |L_body| kept."""
     R = matrix_from_quat(q)
@@ -352,7 +353,7 @@ def physx_gyroscopic_velocity(q, w, moments, h):
     return add(w, matvec(R, sub((L_new[0] / moments[0], L_new[1] / moments[1], L_new[2] / moments[2]), w_b)))
 
 
-@jit
+@helper
 def explicit_gyro_rescaled_momentum_step(k, x, q, v, w, dt, M, moments, Vt, g, loads):
     """engine_maps.explicit_gyro_rescaled_momentum_step (PhysX); q the principal frame."""
     h = dt
@@ -383,7 +384,7 @@ from .compiled import solve  # noqa: E402
 from .engine_maps import DRAKE_SEMI_IMPLICIT, DRAKE_TABLEAUS  # noqa: E402
 
 
-@jit
+@helper
 def drake_time_derivatives(y, M, I_b, g, f, tau):
     """engine_maps.drake_time_derivatives: [1/2 (0, w) q, v, I_w^-1 (tau - w x I_w w), f / M + g]
     (13,) of Drake's state y = [q (as stored), x, w, v] (13,)."""
@@ -404,7 +405,7 @@ def drake_time_derivatives(y, M, I_b, g, f, tau):
     return out
 
 
-@jit
+@helper
 def drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b, per_stage):
     """engine_maps.drake_explicit_rk_step: A (s, s) the tableau's rows (zeros above the
     diagonal), b (s,); ``per_stage``: the wrench at every stage's state, else the step's start's."""
@@ -422,7 +423,9 @@ def drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b, per_stage):
         if per_stage and i > 0:
             f, tau = wrench(k, (y_i[4], y_i[5], y_i[6]),
                             matrix_from_quat((y_i[0], y_i[1], y_i[2], y_i[3])), loads)
-        K[i] = drake_time_derivatives(y_i, M, I_b, g, f, tau)
+        d = drake_time_derivatives(y_i, M, I_b, g, f, tau)
+        for n in range(13):  # element by element: ``K[i] = d`` compiles numba's shape-error message (~1.5 s cold)
+            K[i, n] = d[n]
     out = y.copy()
     for i in range(s):
         if b[i] != 0.0:
@@ -432,7 +435,7 @@ def drake_explicit_rk_step(k, y, dt, M, I_b, g, loads, A, b, per_stage):
     return out
 
 
-@jit
+@helper
 def drake_semi_explicit_euler_step(k, y, dt, M, I_b, g, loads):
     """engine_maps.drake_semi_explicit_euler_step (Drake's discrete plant)."""
     h = dt
@@ -488,14 +491,14 @@ from .engine_maps import (KAMINO_EXP_SERIES_BELOW, NEWTON_STEPS, STEEL_GYRO_ENER
 _NEWTON_KIND = {name: i for i, name in enumerate(NEWTON_STEPS)}  # run_newton's switch
 
 
-@jit
+@helper
 def newton_quat_rate_integrate(q, w, h):
     """engine_maps.newton_quat_rate_integrate: normalize(q + h/2 (0, w) q), w world."""
     p = add4(q, scale4(0.5 * h, quat_multiply((0.0, w[0], w[1], w[2]), q)))
     return scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
 
 
-@jit
+@helper
 def steel_gyroscopic_velocity(I_b, u, h):
     """engine_maps.steel_gyroscopic_velocity: Cayley microsteps of the body rate u."""
     s = max(I_b[0][0], max(I_b[1][1], I_b[2][2]))
@@ -518,7 +521,7 @@ def steel_gyroscopic_velocity(I_b, u, h):
     return w
 
 
-@jit
+@helper
 def quat_rate_cayley_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads):
     """engine_maps.quat_rate_cayley_gyro_step (Newton Steel)."""
     h = dt
@@ -531,7 +534,7 @@ def quat_rate_cayley_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads):
     return add(x, scale(h, v)), newton_quat_rate_integrate(q, w, h), v, w
 
 
-@jit
+@helper
 def quat_rate_pose_velocity_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads):
     """engine_maps.quat_rate_pose_velocity_step (Newton VBD)."""
     h = dt
@@ -548,7 +551,7 @@ def quat_rate_pose_velocity_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads):
     return add(x, scale(h, v)), q_next, v, w
 
 
-@jit
+@helper
 def kamino_quat_exp(phi):
     """engine_maps.kamino_quat_exp."""
     n = math.sqrt(dot(phi, phi))
@@ -558,7 +561,7 @@ def kamino_quat_exp(phi):
     return (1.0, 0.5 * phi[0], 0.5 * phi[1], 0.5 * phi[2])
 
 
-@jit
+@helper
 def explicit_gyro_rescaled_torque_last_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads):
     """engine_maps.explicit_gyro_rescaled_torque_last_step (Newton Kamino)."""
     h = dt
@@ -600,7 +603,7 @@ from .engine_maps import BRAX_ANGULAR_NORM_EPS  # noqa: E402
 BRAX_MAPS = ("explicit-gyro-regularised-exp", "semi-implicit-no-gyro", "semi-implicit-no-gyro-projected")
 
 
-@jit
+@helper
 def brax_integrate_free_rotation(q, w_b, h):
     """engine_maps.brax_integrate_free_rotation: normalize(q * (cos(a/2), w_b / n sin(a/2))),
     n = |w_b| + 1e-8, a = h n."""
@@ -612,14 +615,15 @@ def brax_integrate_free_rotation(q, w_b, h):
     return scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
 
 
-@jit
+@helper
 def explicit_gyro_regularised_exp_step(k, x, q, v, w_b, dt, M, I_b, I_inv, g, loads):
     """engine_maps.explicit_gyro_regularised_exp_step (Brax generalized)."""
-    x, v, w_b = semi_implicit_velocities(k, x, matrix_from_quat(q), v, w_b, dt, M, I_b, I_inv, g, loads, False)
+    x, v, w_b = semi_implicit_velocities(k, x, matrix_from_quat(q), v, w_b, dt, M, I_b, I_inv, g, loads,
+                                         bool(False))  # typed bool: see explicit_gyro_truncated_exp_step
     return x, brax_integrate_free_rotation(q, w_b, dt), v, w_b
 
 
-@jit
+@helper
 def brax_quat_rate_integrate(q, w, h):
     """engine_maps.brax_quat_rate_integrate: normalize(q + (0, w h / 2) q), w world."""
     hh = 0.5 * h
@@ -627,7 +631,7 @@ def brax_quat_rate_integrate(q, w, h):
     return scale4(1.0 / math.sqrt(p[0] * p[0] + p[1] * p[1] + p[2] * p[2] + p[3] * p[3]), p)
 
 
-@jit
+@helper
 def semi_implicit_no_gyro_step(k, x, q, v, w, dt, M, I_b, I_inv, g, loads, project):
     """engine_maps.semi_implicit_no_gyro_step (Brax spring; positional with ``project``)."""
     h = dt
