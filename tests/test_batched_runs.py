@@ -169,3 +169,13 @@ def test_the_pool_leaves_a_slot_to_the_stepping(monkeypatch):
     finally:
         pool.workers = []
         pool.close()
+
+
+@pytest.mark.slow
+def test_run_specs_with_workers_steps_mjx_beside_them_with_the_one_by_one_results():
+    """jobs=2: the MJX runs are stepped in the parent's Background thread beside one worker,
+    then judged by the workers; every result is the one execute() gives the run alone."""
+    problems = [_problem(k, duration=0.03) for k in range(2)]
+    specs = expand(problems, ["mjx", "mujoco"], ["Euler"], [0.01], None, ["float64"])
+    _, outputs = suite.run_specs(specs, None, ["mjx", "mujoco"], progress=False, jobs=2)
+    assert _spec_results(outputs) == _spec_results([execute(s) for s in specs])
