@@ -25,9 +25,13 @@ semi-implicit maps, 0.13-0.21 us for the Euler family, 0.41 us for the symplecti
 body, ``scripts/bench_reference_maps.py``).  It needs no C compiler or build step (numba and llvmlite
 install as binary wheels on a fresh machine), and ``cache=True`` keeps the machine code on disk
 (``__pycache__`` beside this file, or ``NUMBA_CACHE_DIR``): the first use on a machine compiles every
-map (with compiled_engine_maps' about 30 s CPU: 26-30 s measured on 2 shared cores, ~0.1-0.3 s per
-compiled function, most of it numba's type inference of the tuple code), later processes load them
-(about 0.8 s, ``import numba`` included).
+map (with compiled_engine_maps' and the reference adapter's drivers and the truth's rhs, 126
+compilations: about 20-26 s CPU in one process on 2 loaded cores, 35-41 s before the helpers lost
+their Python wrappers, see :class:`CompiledHelper`), later processes load them (about 1.2 s,
+``import numba`` included).  Where a cold compilation goes (numba's event API, exclusive of nested
+compilations): about 80% numba's native lowering (LLVM IR built in Python, LLVM's optimisation of
+the function with every callee it links, machine code), 8% type inference; each of the ~110
+helpers costs 0.05-0.35 s, each driver 0.4-0.9 s, since a driver's module holds its callees' code.
 
 Loads.  A case's loads are piecewise constant over steps: :class:`Loads` cuts the steps into
 segments at the steps where the set of active loads changes (``Load.step_range``) and lists each

@@ -273,3 +273,30 @@ def test_a_blow_up_is_inf_or_nan_not_an_error(scheme):
                  gravity=np.zeros(3), duration_steps=400, dts=(1.0,))
     out = simulate(pb, scheme, 1.0, 400)
     assert len(out) == 401  # no exception; the harness judges non-finite or huge samples diverged
+
+
+# The functions Python calls (the drivers, and bullet_matrix_from_quat for a run's start); every
+# other compiled function of the two modules is a helper that only compiled code calls.
+PYTHON_ENTRIES = {"run_euler_matrix", "run_quat", "run_splitting", "run_semi_implicit", "run_mujoco_rk4",
+                  "run_bullet_maximal", "run_dart", "run_physx", "run_drake", "run_newton", "run_brax",
+                  "bullet_matrix_from_quat"}
+
+
+def test_helpers_are_compiled_without_python_wrappers_and_still_answer_python():
+    """A function only compiled code calls is a CompiledHelper (no CPython/C wrapper: about 30% of a
+    cold first compilation); the drivers are plain dispatchers; a helper called from Python runs a
+    jitted copy of its own source: the same numbers as that source."""
+    from numba.core.registry import CPUDispatcher
+
+    from freebody.reference_impl import compiled_engine_maps as CE
+
+    seen = set()
+    for module in (C, CE):
+        for name, obj in vars(module).items():
+            if isinstance(obj, CPUDispatcher) and obj.py_func.__module__ == module.__name__:
+                assert isinstance(obj, C.CompiledHelper) == (name not in PYTHON_ENTRIES), name
+                seen.add(name)
+    assert PYTHON_ENTRIES <= seen and len(seen) > 2 * len(PYTHON_ENTRIES)
+    a, b = (0.5, 0.5, -0.5, 0.5), (0.9, 0.1, 0.3, -0.2)
+    assert C.quat_multiply(a, b) == C.quat_multiply.py_func(a, b)
+    assert C.quat_multiply.python_entry.nopython_signatures  # ran compiled, not the Python source
