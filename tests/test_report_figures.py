@@ -164,6 +164,27 @@ def _figure_with_text_at(x: float, y: float, w: float, h: float):
     return fig
 
 
+def test_report_html_is_written_before_its_figures_with_places_for_them(run_dir):
+    from freebody.report import html
+
+    doc = json.loads((run_dir / "results.json").read_text())
+    runs, conv = doc["runs"], convergence_of(doc)
+    physics = {c: rd.case_physics(doc, c) for c in rd.by_case(runs)}
+    fill = html.render_html_later(doc, conv, physics, run_dir)  # before any figure is drawn
+    keys = ["heatmap", "convergence", "speed"] + [(c, dt) for c, rs in rd.by_case(runs).items() for dt in rd.dts(rs)]
+    drawn = {key: b"\x89PNG" + repr(key).encode() for key in keys}
+    page = fill(drawn, {"quiz": ["first <note>", "second"]})
+    last = rd.dts(rd.by_case(runs)["quiz"])[-1]
+    quiz_last = html.img(drawn["quiz", last], f"quiz dt={last:g}", rd.figure_anchor("quiz", last))
+    notes = '\n<p class="note">first &lt;note&gt;</p>\n<p class="note">second</p>'
+    assert quiz_last + notes + "\n<h2" in page  # the notes after the case's last figure, as before
+    assert all(html.img(png, "", None).split('src="')[1] in page for png in drawn.values())
+    assert "\x00" not in page
+    none_drawn = fill(dict.fromkeys(keys), {})
+    assert f'<p class="note" id="{rd.figure_anchor("quiz", last)}">(quiz dt={last:g}: nothing to plot)</p>\n<h2' in none_drawn
+    assert html.render_html(doc, conv, physics, drawn, {}, run_dir) == page.replace(notes, "")
+
+
 # --- every text inside its figure; colours --------------------------------------------------------------
 
 def test_a_cut_label_is_found_and_the_figure_grown_to_hold_it():

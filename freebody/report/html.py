@@ -124,22 +124,65 @@ def render_html(doc: dict, convergence: list[dict], physics: dict, figures: dict
     baseline (:func:`freebody.report.render.compare_with`), or None; ``tables``: None (the per-case
     Runs and engine-vs-engine tables in the page), or the page holding them
     (:data:`freebody.report.data.TABLES_PAGE`, :func:`render_tables_html`), pointed to instead."""
+    return render_html_later(doc, convergence, physics, out_dir, source, pairs, found, comparison,
+                             tables)(figures, notes)
+
+
+def render_html_later(doc: dict, convergence: list[dict], physics: dict, out_dir: Path | None = None,
+                      source: str = "results.json", pairs: dict[str, list] | None = None,
+                      found: list[fd.Finding] | None = None, comparison=None, tables: str | None = None):
+    """report.html written before its figures are drawn: returns ``fill(figures, notes)``, which
+    gives :func:`render_html` of these arguments (the same text), putting the figures and notes in
+    the places kept for them.  ``freebody report`` writes the page while worker processes draw."""
     runs = doc.get("runs") or []
     cases = rd.by_case(runs)
     if found is None:
         found = fd.find(runs, convergence=convergence, cases=doc.get("cases"))
+    later = _Later()
     p = _head_html(doc, runs, cases, source, comparison)
     p += _findings_html(found, runs, comparison, tables)
     if comparison is not None:
         p += _compare_html(comparison)
     p += _verdict_html(runs, found, tables)
-    p += _overview_html(doc, runs, figures, convergence)
+    p += _overview_html(doc, runs, later.figure, convergence)
     for case, case_runs in cases.items():
         case_pairs = (pairs or {}).get(case)
-        p += _case_html(case, case_runs, physics.get(case), convergence, case_pairs, figures,
-                        notes.get(case, []), out_dir, tables)
+        p += _case_html(case, case_runs, physics.get(case), convergence, case_pairs, later.figure,
+                        later.notes(case), out_dir, tables)
     p.append("</body></html>\n")
-    return "\n".join(p)
+    return later.filler("\n".join(p))
+
+
+class _Later:
+    """Places kept in a page for what is not known yet (figures, and the notes about runs that
+    could not be drawn): a mark unique to the page and a number, replaced by :meth:`filler`'s
+    function in one pass."""
+
+    def __init__(self):
+        import uuid
+
+        self.mark = f"\x00{uuid.uuid4().hex}:"  # no page text holds it
+        self.parts: list = []  # (figures, notes) -> text
+
+    def _slot(self, make) -> str:
+        self.parts.append(make)
+        return f"{self.mark}{len(self.parts) - 1}\x00"
+
+    def figure(self, key, alt: str, ident: str | None = None) -> str:
+        """The place of figure ``key`` (its :func:`img`)."""
+        return self._slot(lambda figures, notes: img(figures.get(key), alt, ident))
+
+    def notes(self, case: str) -> str:
+        """The place of a case's notes: each a paragraph on a line of its own, after the text
+        it follows."""
+        return self._slot(lambda figures, notes: "".join(f'\n<p class="note">{escape(line)}</p>'
+                                                        for line in notes.get(case, [])))
+
+    def filler(self, page: str):
+        import re
+
+        pattern = re.compile(re.escape(self.mark) + r"(\d+)\x00")
+        return lambda figures, notes: pattern.sub(lambda m: self.parts[int(m.group(1))](figures, notes), page)
 
 
 def _head_html(doc: dict, runs: list[dict], cases: dict, source: str, comparison=None) -> list[str]:
@@ -265,9 +308,10 @@ def _verdict_html(runs: list[dict], found: list[fd.Finding], tables: str | None 
     return p + body
 
 
-def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list[dict] | None = None) -> list[str]:
+def _overview_html(doc: dict, runs: list[dict], figure, convergence: list[dict] | None = None) -> list[str]:
     """The sections over all cases: engines, heat maps, convergence, speed, forced settings,
-    reproduced reference maps, ported engines, conventions."""
+    reproduced reference maps, ported engines, conventions.  ``figure(key, alt)``: a figure's
+    markup (:meth:`_Later.figure`)."""
     p = []
     p.append("<h2>Engines</h2>" + table(("engine", "version", "runs"), rd.engine_versions(doc)))
     versions = side_by_side(doc)
@@ -279,14 +323,14 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
              "only), one colour scale for all: the orientation error max (rad, log scale) of each run. "
              "Dark: the run diverged; red: failed; grey: skipped; white: not run at that time step. "
              "The column labels are repeated above the first panel and below the last.</p>")
-    p.append(img(figures.get("heatmap"), "heat map"))
+    p.append(figure("heatmap", "heat map"))
     p.append('<h2 id="convergence">Convergence</h2>'
              '<p class="note">Error against time step (log-log) for the cases run at 3 or more time steps '
              "(else at 2); dotted: the least-squares fit; the legend gives "
              "the observed order p for the orientation and the energy error (sat.: the errors saturate, "
              "at order pi or at the truth's accuracy floor, so no order is meaningful). Colour: the engine "
              "(colour-blind safe, black: the reference engine); line style and marker: its integrator.</p>")
-    p.append(img(figures.get("convergence"), "convergence"))
+    p.append(figure("convergence", "convergence"))
     columns, rows = rd.observed_orders(convergence or [], runs, doc.get("cases"))
     if rows:
         p.append("<h3>Observed order of convergence per engine run</h3>"
@@ -294,7 +338,7 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
     p.append('<h2 id="speed">Speed and accuracy</h2>'
              '<p class="note">Orientation error against wall-clock time per simulated second, one point per '
              "time step (lower left is better); the legend at the right of the first row.</p>")
-    p.append(img(figures.get("speed"), "speed-accuracy"))
+    p.append(figure("speed", "speed-accuracy"))
     forced = rd.settings_forced(runs)
     note = rd.settings_note(runs)
     p.append('<h2 id="settings">Settings the adapters forced</h2>' + (
@@ -324,11 +368,13 @@ def _overview_html(doc: dict, runs: list[dict], figures: dict, convergence: list
 
 
 def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], case_pairs: list | None,
-               figures: dict, case_notes: list[str], out_dir: Path | None, tables: str | None = None) -> list[str]:
+               figure, case_notes: str, out_dir: Path | None, tables: str | None = None) -> list[str]:
     """One case's section: description, runs (a row id per run), what was not ok, observed
     orders, engine-vs-engine differences at the end (``case_pairs``, computed here when None) and
-    the per-dt figures (an id per figure).  ``ph``: the case's rd.CasePhysics, or None; ``tables``:
-    the page holding the case's Runs and engine-vs-engine tables (pointed to), or None (here)."""
+    the per-dt figures (an id per figure), ``figure(key, alt, id)`` their markup, with the notes
+    about runs that could not be drawn after them (``case_notes``: markup, each note starting a
+    line).  ``ph``: the case's rd.CasePhysics, or None; ``tables``: the page holding the case's
+    Runs and engine-vs-engine tables (pointed to), or None (here)."""
     p = []
     p.append(f'<h2 id="{anchor(case)}">Case <code>{escape(case)}</code></h2>')
     if ph is not None:
@@ -360,9 +406,8 @@ def _case_html(case: str, case_runs: list[dict], ph, convergence: list[dict], ca
              '<p class="note">Colour: the engine (black: the reference engine); line style and marker: its '
              "integrator; the legend at the right.</p>")
     for dt in rd.dts(case_runs):
-        p.append(img(figures.get((case, dt)), f"{case} dt={dt:g}", rd.figure_anchor(case, dt)))
-    for line in case_notes:
-        p.append(f'<p class="note">{escape(line)}</p>')
+        p.append(figure((case, dt), f"{case} dt={dt:g}", rd.figure_anchor(case, dt)))
+    p[-1] += case_notes
     return p
 
 

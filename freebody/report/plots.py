@@ -1048,15 +1048,17 @@ def figure_count(runs: list[dict]) -> int:
 
 
 def render_figures(runs: list[dict], conv: list[dict], physics: dict, out_dir: Path,
-                   jobs: int | None = None, on_figure=None) -> tuple[dict, dict]:
+                   jobs: int | None = None, on_figure=None, workers: list | None = None) -> tuple[dict, dict]:
     """Every figure of report.html: ({'heatmap', 'convergence', 'speed', (case, dt): PNG bytes or
     None}, {case: notes about runs that could not be drawn}).
 
     jobs : processes drawing the figures (the figures are independent); default: one per usable
-        CPU when there are more than SERIAL_FIGURES per-case figures, else this process alone.  The
-        figures are the same whatever ``jobs`` is.
+        CPU when there are more than SERIAL_FIGURES per-case figures (:func:`drawn_apart`), else
+        this process alone.  The figures are the same whatever ``jobs`` is.
     on_figure : called with a figure's name ("heatmap", "case, dt = 0.01 s", ...) as each is done
-        (a progress display: :func:`figure_count` figures in all), or None."""
+        (a progress display: :func:`figure_count` figures in all), or None.
+    workers : worker processes started ahead (:func:`start_workers`) to draw them (then ``jobs``
+        is their number), ended when the figures are done; None: started here when jobs > 1."""
     all_labels = rd.labels(runs)
     tasks = [("heatmap", "heatmap", runs), ("convergence", "convergence", runs, conv),
              ("speed", "speed", runs)]
@@ -1065,12 +1067,13 @@ def render_figures(runs: list[dict], conv: list[dict], physics: dict, out_dir: P
         for dt in rd.dts(case_runs):
             at_dt = [r for r in case_runs if float(r["dt"]) == dt]
             tasks.append(((case, dt), "case", at_dt, physics.get(case), Path(out_dir), all_labels))
-    n_case = len(tasks) - 3
-    if jobs is None:
-        jobs = _usable_cpus() if n_case > SERIAL_FIGURES else 1
+    if workers is not None:
+        jobs = max(len(workers), 1)
+    elif jobs is None:
+        jobs = _usable_cpus() if drawn_apart(runs) else 1
     done = (lambda key: on_figure(_figure_name(key))) if on_figure is not None else (lambda key: None)
-    if jobs > 1:
-        results = _render_parallel(tasks, jobs, done)
+    if jobs > 1 or workers:
+        results = _render_parallel(tasks, jobs, done, workers)
     else:
         results = []
         for t in tasks:
@@ -1086,6 +1089,53 @@ def render_figures(runs: list[dict], conv: list[dict], physics: dict, out_dir: P
     return figures, notes
 
 
+def drawn_apart(runs: list[dict]) -> bool:
+    """Whether render_figures draws these runs' figures in worker processes by default (more than
+    SERIAL_FIGURES per-case figures)."""
+    return figure_count(runs) - 3 > SERIAL_FIGURES
+
+
+def start_workers(jobs: int) -> list:
+    """Up to ``jobs`` figure worker processes (``python -m freebody.report.plots``: started afresh,
+    so nothing of the caller's ``__main__`` is re-run), for render_figures: started ahead, they
+    import matplotlib while the caller reads the results.  [] when none could start."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # import as we do
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")  # the workers are the parallelism: no BLAS threads on top
+    workers = []
+    for _ in range(jobs):
+        try:
+            workers.append(subprocess.Popen([sys.executable, "-m", "freebody.report.plots"],
+                                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env))
+        except OSError:
+            break
+    return workers
+
+
+def stop_workers(workers: list, wait: bool = True) -> None:
+    """End worker processes: each told there is no more work (an idle one exits); a busy one
+    killed unless ``wait``; waited for (killed after 5 s)."""
+    import subprocess
+
+    for w in workers:
+        try:
+            w.stdin.close()  # end of tasks: an idle worker exits
+        except OSError:
+            pass
+    for w in workers:
+        if not wait:  # interrupted (or failed): a busy worker is not waited for
+            w.kill()
+        try:
+            w.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            w.kill()
+            w.wait()
+        w.stdout.close()
+
+
 def _figure_name(key) -> str:
     """A figure's name in the progress display."""
     return key if isinstance(key, str) else f"{key[0]}, dt = {key[1]:g} s"
@@ -1097,15 +1147,13 @@ def _figure_name(key) -> str:
 SUMMARY_COST_SAMPLES = 10**12
 
 
-def _render_parallel(tasks: list[tuple], jobs: int, done=lambda key: None) -> list:
-    """The tasks' results, drawn by up to ``jobs`` worker processes (``python -m
-    freebody.report.plots``: started afresh, so nothing of the caller's ``__main__`` is re-run),
-    the heaviest figures first (the summary figures, then the per-case ones by samples), each
-    worker given the next task as it finishes one; ``done(key)`` is called as each figure
-    arrives.  A task a worker could not draw (it failed, or no worker could start) is drawn here."""
+def _render_parallel(tasks: list[tuple], jobs: int, done=lambda key: None, workers: list | None = None) -> list:
+    """The tasks' results, drawn by up to ``jobs`` worker processes (:func:`start_workers`, or
+    ``workers`` started ahead), the heaviest figures first (the summary figures, then the
+    per-case ones by samples), each worker given the next task as it finishes one; ``done(key)``
+    is called as each figure arrives.  A task a worker could not draw (it failed, or no worker
+    could start) is drawn here.  The workers are ended before this returns."""
     import pickle
-    import subprocess
-    import sys
     from multiprocessing.connection import wait
 
     def size(t: tuple) -> int:  # the samples to read: the heaviest figures go first
@@ -1114,19 +1162,10 @@ def _render_parallel(tasks: list[tuple], jobs: int, done=lambda key: None) -> li
     pending = sorted(tasks, key=size, reverse=True)
     results: list = []
     busy: dict = {}  # worker -> its task
-    workers = []
     finished = False
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}  # import as we do
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        env.setdefault(var, "1")  # the workers are the parallelism: no BLAS threads on top
     try:
-        for _ in range(min(jobs, len(tasks))):
-            try:
-                workers.append(subprocess.Popen([sys.executable, "-m", "freebody.report.plots"],
-                                                stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                                env=env))
-            except OSError:
-                break
+        if workers is None:
+            workers = start_workers(min(jobs, len(tasks)))
 
         def give(w) -> None:
             if pending:
@@ -1154,20 +1193,7 @@ def _render_parallel(tasks: list[tuple], jobs: int, done=lambda key: None) -> li
                     give(w)
         finished = True
     finally:
-        for w in workers:
-            try:
-                w.stdin.close()  # end of tasks: an idle worker exits
-            except OSError:
-                pass
-        for w in workers:
-            if not finished:  # interrupted (or failed) here: a busy worker is not waited for
-                w.kill()
-            try:
-                w.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                w.kill()
-                w.wait()
-            w.stdout.close()
+        stop_workers(workers or [], wait=finished)
     for t in list(pending):  # none left unless every worker failed
         results.append(_figure_task(t))
         done(t[0])
@@ -1184,6 +1210,10 @@ def _worker() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent ends its workers
     inp, out = sys.stdin.buffer, sys.stdout.buffer
     sys.stdout = sys.stderr  # a stray print must not corrupt the results
+    import matplotlib.figure  # noqa: F401  imported while the parent prepares the first task
+    import PIL.PngImagePlugin  # noqa: F401
+
+    agg_canvas(_figure(1, 1))
     while True:
         try:
             task = pickle.load(inp)

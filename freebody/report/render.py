@@ -75,45 +75,53 @@ def write_reports(out_dir: Path, doc: dict | None = None, problems: dict | None 
     Returns the paths written.  A run whose trajectory is not a regular file inside ``out_dir``
     (:func:`freebody.results.document.usable_trajectories`) is drawn without it, with a warning.
 
-    When the figures are drawn by worker processes (more than plots.SERIAL_FIGURES of them), they
-    are started first and drawn while this process writes report.md (:class:`_Figures`).
+    When the figures are drawn by worker processes (more than plots.SERIAL_FIGURES of them), the
+    workers are started first, as soon as the results are read, and draw while this process
+    writes report.md and report.html, whose figures are put in last (:class:`_Figures`).
     """
-    from .markdown import render_markdown
-
-    from ..results.document import load_results, usable_trajectories
+    from ..results.document import load_results
 
     out_dir = Path(out_dir)
     doc = load_results(out_dir if doc is None else doc)  # the newest shape (a document in memory too)
-    doc, refused = usable_trajectories(doc, out_dir)  # only regular files inside out_dir are read
-    for line in refused:
-        warnings.warn(line, stacklevel=2)
-    conv = convergence_of(doc)
-    runs = doc.get("runs") or []
-    physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}
-    figures = _Figures(runs, conv, physics, out_dir, progress) if html else None
+    figures = _Figures(doc.get("runs") or [], progress) if html else None  # workers start importing
     try:
-        if figures is not None and figures.parallel:
-            figures.start()  # the workers draw while report.md is written
-        pairs, found, comparison = _tables_data(doc, runs, conv, physics, out_dir, baseline)
-        tables = _tables_page(out_dir, runs, pairs, physics) if html else None
-        md_path = out_dir / "report.md"
-        write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs, found=found,
-                                                   comparison=comparison, tables=tables))
-        written = [md_path]
-        if figures is not None:
-            from .html import render_html, render_tables_html
-
-            if tables is not None:
-                write_text_atomic(out_dir / tables, render_tables_html(doc, physics, pairs))
-                written.append(out_dir / tables)
-            figs, notes = figures.result()
-            html_path = out_dir / "report.html"
-            write_text_atomic(html_path, render_html(doc, conv, physics, figs, notes, out_dir, pairs=pairs,
-                                                     found=found, comparison=comparison, tables=tables))
-            written.append(html_path)
+        return _write_reports(out_dir, doc, problems, figures, baseline)
     finally:
         if figures is not None:
             figures.stop()
+
+
+def _write_reports(out_dir: Path, doc: dict, problems: dict | None, figures: _Figures | None, baseline) -> list[Path]:
+    """write_reports once the results are read and the figure workers (``figures``) started."""
+    from .markdown import render_markdown
+
+    from ..results.document import usable_trajectories
+
+    doc, refused = usable_trajectories(doc, out_dir)  # only regular files inside out_dir are read
+    for line in refused:
+        warnings.warn(line, stacklevel=3)
+    conv = convergence_of(doc)
+    runs = doc.get("runs") or []
+    physics = {c: rd.case_physics(doc, c, problems) for c in rd.by_case(runs)}
+    if figures is not None and figures.parallel:
+        figures.start(runs, conv, physics, out_dir)  # the workers draw while the reports are written
+    pairs, found, comparison = _tables_data(doc, runs, conv, physics, out_dir, baseline)
+    tables = _tables_page(out_dir, runs, pairs, physics) if figures is not None else None
+    md_path = out_dir / "report.md"
+    write_text_atomic(md_path, render_markdown(doc, conv, physics, out_dir, pairs=pairs, found=found,
+                                               comparison=comparison, tables=tables))
+    written = [md_path]
+    if figures is not None:
+        from .html import render_html_later, render_tables_html
+
+        if tables is not None:
+            write_text_atomic(out_dir / tables, render_tables_html(doc, physics, pairs))
+            written.append(out_dir / tables)
+        fill = render_html_later(doc, conv, physics, out_dir, pairs=pairs, found=found, comparison=comparison,
+                                 tables=tables)
+        html_path = out_dir / "report.html"
+        write_text_atomic(html_path, fill(*figures.result(runs, conv, physics, out_dir)))
+        written.append(html_path)
     return written
 
 
@@ -146,19 +154,20 @@ class _FiguresStopped(Exception):
 
 
 class _Figures:
-    """The figures of report.html (:func:`freebody.report.plots.render_figures`), drawn in a
-    thread of this process that feeds the worker processes (``start``, then ``result``), or here
-    when ``result`` is called first; with a progress display of the figures done / total."""
+    """The figures of report.html (:func:`freebody.report.plots.render_figures`) of ``runs``: when
+    worker processes draw them (``parallel``), the workers are started here and fed by a thread
+    of this process (``start``, then ``result``); else drawn here when ``result`` is called; with a
+    progress display of the figures done / total.  ``stop`` ends what is left."""
 
-    def __init__(self, runs: list[dict], conv: list[dict], physics: dict, out_dir: Path, progress: bool):
+    def __init__(self, runs: list[dict], progress: bool):
         import threading
 
         from . import plots
         from ..run.progress import ProgressDisplay
 
-        self.args = (runs, conv, physics, out_dir)
         total = plots.figure_count(runs)
-        self.parallel = total - 3 > plots.SERIAL_FIGURES  # as render_figures decides
+        self.parallel = plots.drawn_apart(runs)  # as render_figures decides
+        self.workers = plots.start_workers(plots._usable_cpus()) if self.parallel else None
         # shown on a terminal, and in a log when the figures take long (worker processes draw them):
         # a report of a few figures takes seconds, and its log stays the warnings alone
         shown = progress and (self.parallel or bool(getattr(sys.stderr, "isatty", lambda: False)()))
@@ -172,23 +181,27 @@ class _Figures:
             raise _FiguresStopped  # render_figures ends its workers
         self.display.update(name)
 
-    def _draw(self) -> None:
+    def _draw(self, runs: list[dict], conv: list[dict], physics: dict, out_dir: Path) -> None:
         from . import plots
 
+        workers, self.workers = self.workers, None  # render_figures ends them
         try:
-            self.outcome = plots.render_figures(*self.args, on_figure=self._done)
+            self.outcome = plots.render_figures(runs, conv, physics, out_dir, on_figure=self._done,
+                                                jobs=None if workers is None else len(workers), workers=workers)
         except BaseException as e:  # handed to result()
             self.outcome = e
 
-    def start(self) -> None:
+    def start(self, runs: list[dict], conv: list[dict], physics: dict, out_dir: Path) -> None:
         import threading
 
-        self.thread = threading.Thread(target=self._draw, name="report-figures", daemon=True)
+        self.thread = threading.Thread(target=self._draw, args=(runs, conv, physics, out_dir),
+                                       name="report-figures", daemon=True)
         self.thread.start()
 
-    def result(self) -> tuple[dict, dict]:
+    def result(self, runs: list[dict], conv: list[dict], physics: dict, out_dir: Path) -> tuple[dict, dict]:
+        """(figures, notes) of these runs: those the thread drew (``start``), or drawn now."""
         if self.thread is None:
-            self._draw()
+            self._draw(runs, conv, physics, out_dir)
         else:
             self.thread.join()
         if isinstance(self.outcome, BaseException):
@@ -196,10 +209,16 @@ class _Figures:
         return self.outcome
 
     def stop(self) -> None:
-        """After the report (written, or failed): a thread still drawing stops at its next figure."""
+        """After the report (written, or failed): a thread still drawing stops at its next figure;
+        workers never handed their figures are ended."""
+        from . import plots
+
         self.stopping.set()
         if self.thread is not None:
             self.thread.join()
+        if self.workers:
+            plots.stop_workers(self.workers, wait=False)
+            self.workers = None
 
 
 def finish_run(out_dir: Path, doc: dict, problems: dict, report: bool = True,
