@@ -134,34 +134,7 @@ def _cached_text_canvas():
             self._draw_glyphs(gc, x, y, angle, prop.get_size_in_points(), items)
 
         def _draw_glyphs(self, gc, x, y, angle, size, items) -> None:
-            """RendererAgg._draw_text_glyphs_and_boxes of these glyphs (no boxes), each glyph's
-            bitmap rendered once per font, size, dpi, rotation, hinting and position within its
-            pixel (1/64 pixel, FreeType's unit): a glyph moved by whole pixels is the same
-            bitmap moved by as many (its outline is translated by whole pixels before it is
-            rasterised), so the pixels are those of rendering it each time."""
-            cos, sin = math.cos(math.radians(angle)), math.sin(math.radians(angle))
-            matrix = (0x10000 * np.array([[cos, -sin], [sin, cos]])).round().astype(int)
-            flags = agg.get_hinting_flag()
-            antialiased = gc.get_antialiased()
-            for ft, glyph, dx, dy in items:  # dy is upwards
-                tx = round(0x40 * (x + dx * cos - dy * sin))
-                ty = round(0x40 * (self.height - y + dx * sin + dy * cos))  # FreeType's y is upwards
-                key = (ft, size, self.dpi, glyph, tuple(matrix.ravel()), tx & 63, ty & 63, flags, antialiased)
-                hit = glyphs.get(key)
-                if hit is None:
-                    ft.set_size(size, self.dpi)
-                    ft._set_transform(matrix, [tx, ty])
-                    bitmap = ft._render_glyph(glyph, flags, agg.RenderMode.NORMAL if antialiased
-                                              else agg.RenderMode.MONO)
-                    buffer = np.array(bitmap.buffer)
-                    if not antialiased:
-                        buffer *= 0xff
-                    hit = (buffer, bitmap.left - (tx >> 6), bitmap.top - (ty >> 6))
-                    _remember(glyphs, key, hit)
-                buffer, left, top = hit
-                # draw_text_image's y is downwards and the bitmap's bottom side
-                self._renderer.draw_text_image(buffer, left + (tx >> 6),
-                                               int(self.height) - (top + (ty >> 6)) + buffer.shape[0], 0, gc)
+            _draw_glyphs(self, agg, glyphs, gc, x, y, angle, size, items)
 
         def _get_font_height_metrics(self, prop):
             """(ascent, descent, line gap) in pixels of the font of ``prop``, as
@@ -190,6 +163,38 @@ def _cached_text_canvas():
             return self.renderer
 
     return Canvas
+
+
+def _draw_glyphs(renderer, agg, glyphs: dict, gc, x, y, angle, size, items) -> None:
+    """RendererAgg._draw_text_glyphs_and_boxes of these glyphs (no boxes) on ``renderer`` (of
+    :func:`agg_canvas`; ``agg``: matplotlib's backend_agg; ``glyphs``: the bitmaps kept), each glyph's
+    bitmap rendered once per font, size, dpi, rotation, hinting and position within its
+    pixel (1/64 pixel, FreeType's unit): a glyph moved by whole pixels is the same
+    bitmap moved by as many (its outline is translated by whole pixels before it is
+    rasterised), so the pixels are those of rendering it each time."""
+    cos, sin = math.cos(math.radians(angle)), math.sin(math.radians(angle))
+    matrix = (0x10000 * np.array([[cos, -sin], [sin, cos]])).round().astype(int)
+    flags = agg.get_hinting_flag()
+    antialiased = gc.get_antialiased()
+    for ft, glyph, dx, dy in items:  # dy is upwards
+        tx = round(0x40 * (x + dx * cos - dy * sin))
+        ty = round(0x40 * (renderer.height - y + dx * sin + dy * cos))  # FreeType's y is upwards
+        key = (ft, size, renderer.dpi, glyph, tuple(matrix.ravel()), tx & 63, ty & 63, flags, antialiased)
+        hit = glyphs.get(key)
+        if hit is None:
+            ft.set_size(size, renderer.dpi)
+            ft._set_transform(matrix, [tx, ty])
+            bitmap = ft._render_glyph(glyph, flags, agg.RenderMode.NORMAL if antialiased
+                                      else agg.RenderMode.MONO)
+            buffer = np.array(bitmap.buffer)
+            if not antialiased:
+                buffer *= 0xff
+            hit = (buffer, bitmap.left - (tx >> 6), bitmap.top - (ty >> 6))
+            _remember(glyphs, key, hit)
+        buffer, left, top = hit
+        # draw_text_image's y is downwards and the bitmap's bottom side
+        renderer._renderer.draw_text_image(buffer, left + (tx >> 6),
+                                           int(renderer.height) - (top + (ty >> 6)) + buffer.shape[0], 0, gc)
 
 
 def _remember(cache: dict, key, value) -> None:
