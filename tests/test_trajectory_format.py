@@ -101,6 +101,40 @@ def test_format2_reads_back_what_was_saved(tmp_path):
     assert TRUTH_FILE.fullmatch(layout["truth"]["file"]) and (tmp_path / layout["truth"]["file"]).is_file()
 
 
+def test_members_read_directly_are_the_arrays_numpy_reads(tmp_path):
+    """_npy_member reads the headers np.save writes for a format-2 file itself: the same arrays
+    (dtype, shape, bytes, writable) as numpy's reader; another header is numpy's to read; a
+    missing member is numpy's KeyError."""
+    from freebody.results import document as D
+
+    path, _ = _save(tmp_path, _motion(301, 0.01, 5), _motion(301, 0.01, 6))
+    write_npz_atomic(tmp_path / "other.npz", {"a": np.arange(6.0).reshape(2, 3), "b": np.arange(4, dtype=">i4"),
+                                              "c": np.array(7)})
+    for name in (path, tmp_path / "other.npz", *tmp_path.glob("truth__*.npz")):
+        with np.load(name) as z:
+            for member in z.files:
+                mine, numpys = D._npy_member(z, member), z[member]
+                assert _same(mine, numpys) and mine.flags.writeable == numpys.flags.writeable, member
+            with pytest.raises(KeyError):
+                D._npy_member(z, "no_such_member")
+
+
+def test_a_truth_file_rewritten_is_read_anew(tmp_path):
+    """The truth block kept for the next run of a truth file is not used once that file changed."""
+    from freebody.results import document as D
+
+    truth = _motion(401, 0.01, 7)
+    path, (_, s_truth, _) = _save(tmp_path, _motion(401, 0.01, 8), truth)
+    _assert_same(load_trajectory(path)[1], s_truth)
+    (truth_file,) = tmp_path.glob("truth__*.npz")
+    with np.load(truth_file) as z:
+        arrays = {k: z[k] for k in z.files}
+    block, index = D._truth_file_block(np.load(truth_file), json.loads(str(arrays["layout"][()]))["columns"], "")
+    write_npz_atomic(truth_file, {**arrays, "samples": encode_block(block + 1.0)})  # another truth, same name
+    got = load_trajectory(path)[1]
+    assert np.array_equal(got.position, s_truth.position + 1.0)
+
+
 def test_runs_of_one_truth_share_one_truth_file(tmp_path):
     """Runs of a (case, dt) keep their own maxima besides the common stride: the truth at the stride
     is stored once, each run's own samples in its file; every run reads its whole truth back."""

@@ -566,7 +566,7 @@ class _Format2(TrajectoryArrays):
         mine = np.ones(len(index), bool)
         if entry["file"] is not None:
             with self._open_truth(entry["file"]) as t:
-                shared, shared_index = _truth_file_block(t, fields, f"truth file {entry['file']}")
+                shared, shared_index = _shared_truth_block(t, fields, f"truth file {entry['file']}")
             pos = np.searchsorted(shared_index, index)
             pos[pos == len(shared_index)] = 0
             mine = shared_index[pos] != index if len(shared_index) else mine
@@ -577,10 +577,38 @@ class _Format2(TrajectoryArrays):
         return out
 
 
+# The .npy headers np.save writes for the members of a format-2 file (1-D int64 or uint8, a 0-d
+# string): read by _npy_member without numpy's header parser (ast.literal_eval, a fifth of reading
+# a file); any other header is numpy's to read.
+_NPY_HEADER = re.compile(rb"\{'descr': '(<i8|\|u1|<U[0-9]{1,6})', 'fortran_order': False, "
+                         rb"'shape': \(([0-9]{1,12},)?\), \} *\n")
+
+
+def _npy_member(z, name: str) -> np.ndarray:
+    """``z[name]`` of an open npz ``z`` (the same array: a writable copy of the member's values),
+    read directly when its header is one of _NPY_HEADER's and its size what the header says;
+    else (or for a missing member: KeyError) by numpy.  A damaged member raises what zipfile
+    raises reading it (BadZipFile on a wrong CRC-32, zlib.error), as numpy would."""
+    members = z.zip.NameToInfo
+    if name in members or name + ".npy" not in members:
+        return z[name]  # a member of that very name (freebody writes none), or numpy's KeyError
+    data = z.zip.read(name + ".npy")
+    if data[:8] == b"\x93NUMPY\x01\x00":
+        end = 10 + int.from_bytes(data[8:10], "little")
+        m = _NPY_HEADER.fullmatch(data, 10, end)
+        if m:
+            dtype = np.dtype(m.group(1).decode("ascii"))
+            shape = (int(m.group(2)[:-1]),) if m.group(2) else ()
+            count = shape[0] if shape else 1
+            if len(data) - end == count * dtype.itemsize:
+                return np.frombuffer(data, dtype=dtype, count=count, offset=end).reshape(shape).copy()
+    return z[name]
+
+
 def _member(z, name: str, what: str, dtype) -> np.ndarray:
     """Member ``name`` of an open npz ``z``, a 1-D array of ``dtype``; FileRefused otherwise."""
     try:
-        a = z[name]
+        a = _npy_member(z, name)
     except KeyError:
         raise FileRefused(what, f"not a trajectory file (no {name})") from None
     except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # a damaged member
@@ -600,6 +628,28 @@ def _decoded(z, name: str, rows: int, fields: list[str], what: str) -> np.ndarra
     return decode_block(data, rows, columns)
 
 
+# Truth files' blocks read in this process (_shared_truth_block): the runs of a case at one dt share
+# one truth file, read once for all of them (a report reads a figure's runs one after another).
+_TRUTH_BLOCKS: dict = {}
+TRUTH_BLOCKS_KEPT = 4
+
+
+def _shared_truth_block(z, fields: list[str], what: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_truth_file_block` of an open truth file, kept (read-only) for the next run naming
+    the same file: the same file on the disk (device, inode, size, modification and change times
+    of the file opened) read for the same columns."""
+    st = os.fstat(z.zip.fp.fileno())
+    key = (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns, tuple(fields))
+    if key not in _TRUTH_BLOCKS:
+        block, index = _truth_file_block(z, fields, what)
+        block.setflags(write=False)
+        index.setflags(write=False)
+        if len(_TRUTH_BLOCKS) >= TRUTH_BLOCKS_KEPT:
+            del _TRUTH_BLOCKS[next(iter(_TRUTH_BLOCKS))]
+        _TRUTH_BLOCKS[key] = block, index
+    return _TRUTH_BLOCKS[key]
+
+
 def _truth_file_block(z, fields: list[str], what: str) -> tuple[np.ndarray, np.ndarray]:
     """(block (S, C), steps (S,)) of an open truth file whose columns are ``fields``."""
     layout = _layout(z, what)
@@ -614,7 +664,7 @@ def _truth_file_block(z, fields: list[str], what: str) -> tuple[np.ndarray, np.n
 def _layout(z, what: str) -> dict:
     """The ``layout`` of an open format-2 file, checked: FileRefused for a newer or unknown format."""
     try:
-        layout = json.loads(str(z[LAYOUT][()]))
+        layout = json.loads(str(_npy_member(z, LAYOUT)[()]))
     except (ValueError, TypeError, IndexError) as e:
         raise FileRefused(what, f"not a trajectory file (its layout: {type(e).__name__})") from None
     version = layout.get("trajectory_format") if isinstance(layout, dict) else None
