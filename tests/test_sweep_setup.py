@@ -126,3 +126,65 @@ def test_a_mujoco_body_is_built_with_one_model_compilation(monkeypatch):
     for b, xml in zip(bodies[1:], compiled):  # the element inertial_element gives, compiled once
         assert inertial_element(b.problem.body.mass, b.problem.body.I_body) in xml
         assert fullinertia_element(b.problem.body.mass, b.problem.body.I_body) in xml
+
+
+def test_the_sweep_starts_its_workers_before_it_draws_its_bodies(monkeypatch):
+    """``freebody sweep`` starts its pool first (tools.sweep.start_pool), so the workers' imports
+    overlap the drawing of the bodies; the pool is the one its runs go to, and it is closed after
+    (the code before spawned the workers in run_specs, after the bodies: 0 at the draw)."""
+    from freebody.run import executor
+    from freebody.tools import sweep as sw
+
+    spawned, at_draw, pools = [], [], []
+    real_init, real_draw, real_run = executor.Worker.__init__, sw.random_bodies, executor.LocalPool.run
+
+    def init(self, *a, **k):
+        spawned.append(self)
+        real_init(self, *a, **k)
+
+    def draw(settings):
+        at_draw.append(len(spawned))
+        return real_draw(settings)
+
+    def run(self, *a, **k):
+        pools.append((self, len(self.workers)))
+        return real_run(self, *a, **k)
+
+    monkeypatch.setattr(executor.Worker, "__init__", init)
+    monkeypatch.setattr(sw, "random_bodies", draw)
+    monkeypatch.setattr(executor.LocalPool, "run", run)
+    out = sw.sweep(sw.SweepSettings(seed=3, count=1, duration=0.02, dts=(0.01,)), ["reference"],
+                   ["semi-implicit-explicit-gyro"], None, progress=False, jobs=2)
+    assert at_draw == [1]  # one run: one worker (min(jobs, runs)), started before the draw
+    assert len(pools) == 1 and pools[0][1] == 1 and len(spawned) == 1  # that worker ran the run
+    assert pools[0][0].workers == [] and spawned[0].proc.poll() is not None  # closed, exited
+    assert [r["status"] for r in out.document["runs"]] == ["ok"]
+
+
+class _IdleWorker:
+    def __init__(self, log, name):
+        self.log, self.name, self.task, self.ready = log, name, None, True
+
+    def ask_exit(self):
+        self.log.append(("exit", self.name))
+
+    def stop(self, asked=False):
+        self.log.append(("wait", self.name, asked))
+
+    def kill(self):
+        self.log.append(("kill", self.name))
+
+
+def test_closing_a_pool_tells_every_idle_worker_to_exit_before_waiting_for_one():
+    """Idle workers exit side by side: each is told first, then each is waited for (the code
+    before told and waited for one after the other); a busy one is killed."""
+    from freebody.run.executor import LocalPool
+
+    log: list = []
+    pool = LocalPool(3, share_truths=False)
+    busy = _IdleWorker(log, "c")
+    busy.task = object()
+    pool.workers = [_IdleWorker(log, "a"), _IdleWorker(log, "b"), busy]
+    pool.close()
+    assert log == [("exit", "a"), ("exit", "b"), ("wait", "a", True), ("wait", "b", True), ("kill", "c")]
+    assert pool.workers == []

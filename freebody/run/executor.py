@@ -211,12 +211,20 @@ class Worker:
             self.proc.kill()
             return self.proc.wait()
 
-    def stop(self) -> None:
-        """Ask an idle worker to exit; kill it if it does not."""
+    def ask_exit(self) -> None:
+        """Tell an idle worker to exit, without waiting (:meth:`stop` waits)."""
         try:
             self.to_worker.send(("exit",))
+        except OSError:
+            pass
+
+    def stop(self, asked: bool = False) -> None:
+        """Ask an idle worker to exit (unless ``asked`` already); kill it if it does not."""
+        if not asked:
+            self.ask_exit()
+        try:
             self.proc.wait(KILL_WAIT_S)
-        except (OSError, subprocess.TimeoutExpired):
+        except subprocess.TimeoutExpired:
             pass
         self.kill()
 
@@ -445,14 +453,29 @@ class LocalPool:
             except OSError:
                 pass
 
+    def start(self, count: int) -> None:
+        """Start up to ``count`` workers (of this interpreter) now, before the runs are known, so
+        that their start-up (imports) overlaps the caller's work until :meth:`run` (``freebody
+        sweep`` starts them before drawing its bodies).  :meth:`run` uses them as its own."""
+        while len(self.workers) < min(self.jobs, count) and self._start_failures < WORKER_START_ATTEMPTS:
+            try:
+                self.workers.append(Worker(self.options))
+            except OSError as e:
+                self._start_failures += 1
+                sys.stderr.write(f"freebody: warning: cannot start a worker process: {e}\n")
+
     def close(self, kill: bool = False) -> None:
-        """Stop every worker (kill them if ``kill`` or if busy) and remove the shared directory."""
+        """Stop every worker (kill them if ``kill`` or if busy) and remove the shared directory.
+        Idle workers are all told to exit first, then waited for: they exit side by side."""
         workers, self.workers = self.workers, []
+        idle = [w for w in workers if not (kill or w.task is not None or not w.ready)]
+        for w in idle:
+            w.ask_exit()
         for w in workers:
-            if kill or w.task is not None or not w.ready:
-                w.kill()
+            if w in idle:
+                w.stop(asked=True)
             else:
-                w.stop()
+                w.kill()
         if self.store is not None:
             shutil.rmtree(self.store, ignore_errors=True)
 

@@ -61,7 +61,7 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
               on_result: Callable[[RunOutput], None] | None = None, *, jobs: int = 1,
               timeout: float | None = None, executor: str = "local", scheduler: str | None = None,
               keep_arrays: bool = False, isolate: bool = True,
-              simulated: dict[int, tuple] | None = None) -> tuple[dict, list[RunOutput]]:
+              simulated: dict[int, tuple] | None = None, pool=None) -> tuple[dict, list[RunOutput]]:
     """Execute every spec, write results.json and the trajectory files to ``out_dir`` (if not None).
 
     jobs : worker processes (executor "local"); each run is isolated in a worker process whatever
@@ -80,6 +80,8 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
         step runs together bit for bit as alone (MJX) are stepped so in this process
         (:mod:`freebody.run.batching`): first, or with ``jobs`` > 1 in a thread beside ``jobs`` - 1
         workers, then judged in the workers: the same results, less time.
+    pool : None, or a started :class:`~freebody.run.executor.LocalPool` of ``jobs`` workers to run
+        the runs in (``freebody sweep`` starts it before drawing its bodies); the caller closes it.
 
     Returns (the results.json document, the RunOutputs in spec order); ``on_result`` is called
     with each RunOutput as it finishes.  The numbers do not depend on ``jobs`` or ``executor``.
@@ -124,7 +126,7 @@ def run_specs(specs: list[RunSpec], out_dir: Path | None, engines: list[str],
             _execute_tasks(tasks, finished.add, executor=executor, jobs=jobs, timeout=timeout,
                            scheduler=scheduler, engines=engines, isolate=isolate,
                            on_steps=lambda i, done, total: bar.steps(done, total, _label(specs[i])),
-                           slot_taken=None if stepping is None else stepping.running)
+                           slot_taken=None if stepping is None else stepping.running, pool=pool)
         except KeyboardInterrupt as e:
             with _interrupts_deferred():
                 finished.interrupted(e)
@@ -255,7 +257,7 @@ def _label(spec: RunSpec) -> str:
 def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executor: str, jobs: int,
                    timeout: float | None, scheduler: str | None, engines: list[str],
                    isolate: bool = True, on_steps: Callable[[int, int, int], None] | None = None,
-                   slot_taken: Callable[[], bool] | None = None) -> None:
+                   slot_taken: Callable[[], bool] | None = None, pool=None) -> None:
     """Execute the planned tasks, calling ``on_done(index, payload)`` as each finishes: in local
     worker processes (``jobs`` of them, one for ``jobs=1``), on a dask cluster, or in this process
     (``isolate=False``).  ``on_steps(index, done, total)``: a long run's steps so far (local
@@ -267,6 +269,8 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
         from .dask_executor import run_dask
 
         run_dask(tasks, scheduler, timeout, engines, on_done)
+    elif pool is not None:  # the caller's, started early; the caller closes it
+        pool.run(tasks, on_done, on_steps)
     elif not isolate:
         run_serial(tasks, on_done, on_steps)
     else:

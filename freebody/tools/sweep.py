@@ -243,7 +243,8 @@ def first_body_specs(settings: SweepSettings, engines: list[str], integrators: l
 
 def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[str] | None = None,
                progress: bool = True, precisions: list[str] | None = None, *, jobs: int = 1,
-               isolate: bool = True, on_interrupt: Callable[[list[dict]], str] | None = None) -> list[dict]:
+               isolate: bool = True, on_interrupt: Callable[[list[dict]], str] | None = None,
+               pool=None) -> list[dict]:
     """Run every body on every selected engine and integrator at the sweep's time steps.
 
     The runs go through :func:`freebody.run.suite.run_specs`, the executor of ``freebody run``:
@@ -258,6 +259,9 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
     On Ctrl-C, SIGTERM or SIGHUP the workers are ended, ``on_interrupt`` is called (signals held
     off) with the runs finished so far, in the same order, and says what it kept ("nothing
     written" without it); the interrupt is then re-raised.
+    ``pool``: None, or the started :class:`~freebody.run.executor.LocalPool` to run them in
+    (:func:`start_pool`; the caller closes it, this function only on an interrupt, before
+    ``on_interrupt``).
     """
     from ..run import interrupts
     from ..run.suite import check_options, run_specs
@@ -281,9 +285,11 @@ def run_bodies(bodies: list[SweepBody], engines: list[str], integrators: list[st
             batched = _batched_outputs(specs, progress)
             simulated = {i: batched[id(s)] for i, s in enumerate(specs) if id(s) in batched}
             _, outputs = run_specs(specs, None, engines, progress=False, on_result=shown, jobs=jobs,
-                                   isolate=isolate, simulated=simulated)
+                                   isolate=isolate, simulated=simulated, pool=pool)
     except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: the CLI exits with its code
         with interrupts.deferred():
+            if pool is not None:  # the workers end before anything is written, as run_specs's do
+                pool.close(kill=True)
             order = {s.key: i for i, s in enumerate(specs)}
             done = sorted(finished, key=lambda o: order.get(_key(o.result), len(specs)))
             kept = on_interrupt([_sweep_run(o) for o in done]) if on_interrupt and done else "nothing written"
@@ -459,10 +465,46 @@ def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | 
     Interrupted (Ctrl-C, SIGTERM, SIGHUP) with runs finished, the sweep of those runs (their
     bodies, ``"incomplete": true``) is written to ``out_dir/interrupted/`` and the interrupt
     re-raised: a complete sweep in out_dir is never touched by an interrupted one.  A complete
-    sweep removes the interrupted one's files (those its sweep.json names, nothing else)."""
+    sweep removes the interrupted one's files (those its sweep.json names, nothing else).
+    The workers are started first (:func:`start_pool`): they import while the bodies are drawn."""
+    t0 = time.perf_counter()
+    pool = start_pool(settings, engines, integrators, precisions, jobs, isolate)
+    try:
+        return _sweep(settings, engines, integrators, out_dir, progress, precisions, on_bodies, jobs,
+                      isolate, pool, t0)
+    finally:
+        if pool is not None:  # closed already unless the runs raised
+            from ..run import interrupts
+
+            with interrupts.deferred():  # a second Ctrl-C must not leave workers behind
+                pool.close(kill=True)
+
+
+def start_pool(settings: SweepSettings, engines: list[str], integrators: list[str] | None,
+               precisions: list[str] | None, jobs: int, isolate: bool = True):
+    """The :class:`~freebody.run.executor.LocalPool` of a sweep's runs (the pool ``run_specs``
+    would make: ``min(jobs, runs)`` workers, no time limit), its workers started now, before the
+    bodies are drawn, so that their start-up overlaps this process's until the runs are sent;
+    None when the runs go elsewhere (``isolate=False``; an engine in an environment of its own,
+    whose workers ``run_specs`` picks by the runs)."""
+    from ..envs.engines import interpreters
+    from ..run.executor import LocalPool
+    from ..run.suite import check_options
+
+    check_options(jobs, None, None, "local", None, isolate, engines)  # bad input: no worker started
+    runs = settings.count * len(first_body_specs(settings, engines, integrators, precisions))
+    if not isolate or runs == 0 or interpreters(engines):
+        return None
+    pool = LocalPool(min(jobs, runs), engines=engines, interpreters={})
+    pool.start(pool.jobs)
+    return pool
+
+
+def _sweep(settings, engines, integrators, out_dir, progress, precisions, on_bodies, jobs, isolate,
+           pool, t0: float) -> SweepOutcome:
+    """:func:`sweep` once its pool is started (``pool``, or None: run_specs's own)."""
     from ..run.suite import engine_versions
 
-    t0 = time.perf_counter()
     bodies = random_bodies(settings)
     if on_bodies:
         on_bodies(bodies)
@@ -478,7 +520,9 @@ def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | 
         return f"kept in {folder / 'sweep.json'} (marked incomplete)"
 
     runs = run_bodies(bodies, engines, integrators, progress=progress, precisions=precisions, jobs=jobs,
-                      isolate=isolate, on_interrupt=keep)
+                      isolate=isolate, on_interrupt=keep, pool=pool)
+    if pool is not None:
+        pool.close()  # the workers exit while the document is made and written
     outcome = _outcome(settings, engines, bodies, runs, time.perf_counter() - t0, engine_versions, out_dir)
     if out_dir is not None:
         _write(outcome, Path(out_dir))
