@@ -101,24 +101,6 @@ def test_format2_reads_back_what_was_saved(tmp_path):
     assert TRUTH_FILE.fullmatch(layout["truth"]["file"]) and (tmp_path / layout["truth"]["file"]).is_file()
 
 
-def test_members_read_directly_are_the_arrays_numpy_reads(tmp_path):
-    """_npy_member reads the headers np.save writes for a format-2 file itself: the same arrays
-    (dtype, shape, bytes, writable) as numpy's reader; another header is numpy's to read; a
-    missing member is numpy's KeyError."""
-    from freebody.results import document as D
-
-    path, _ = _save(tmp_path, _motion(301, 0.01, 5), _motion(301, 0.01, 6))
-    write_npz_atomic(tmp_path / "other.npz", {"a": np.arange(6.0).reshape(2, 3), "b": np.arange(4, dtype=">i4"),
-                                              "c": np.array(7)})
-    for name in (path, tmp_path / "other.npz", *tmp_path.glob("truth__*.npz")):
-        with np.load(name) as z:
-            for member in z.files:
-                mine, numpys = D._npy_member(z, member), z[member]
-                assert _same(mine, numpys) and mine.flags.writeable == numpys.flags.writeable, member
-            with pytest.raises(KeyError):
-                D._npy_member(z, "no_such_member")
-
-
 def test_a_truth_file_rewritten_is_read_anew(tmp_path):
     """The truth block kept for the next run of a truth file is not used once that file changed."""
     from freebody.results import document as D

@@ -1039,7 +1039,8 @@ def _figure_task(task: tuple):
     return key, png, notes
 
 
-def _usable_cpus() -> int:
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask; else the machine's count): the figure workers' number."""
     try:
         return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):
@@ -1075,7 +1076,7 @@ def render_figures(runs: list[dict], conv: list[dict], physics: dict, out_dir: P
     if workers is not None:
         jobs = max(len(workers), 1)
     elif jobs is None:
-        jobs = _usable_cpus() if drawn_apart(runs) else 1
+        jobs = usable_cpus() if drawn_apart(runs) else 1
     done = (lambda key: on_figure(_figure_name(key))) if on_figure is not None else (lambda key: None)
     if jobs > 1 or workers:
         results = _render_parallel(tasks, jobs, done, workers)

@@ -167,7 +167,7 @@ class _Figures:
 
         total = plots.figure_count(runs)
         self.parallel = plots.drawn_apart(runs)  # as render_figures decides
-        self.workers = plots.start_workers(plots._usable_cpus()) if self.parallel else None
+        self.workers = plots.start_workers(plots.usable_cpus()) if self.parallel else None
         # shown on a terminal, and in a log when the figures take long (worker processes draw them):
         # a report of a few figures takes seconds, and its log stays the warnings alone
         shown = progress and (self.parallel or bool(getattr(sys.stderr, "isatty", lambda: False)()))

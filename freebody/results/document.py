@@ -577,38 +577,10 @@ class _Format2(TrajectoryArrays):
         return out
 
 
-# The .npy headers np.save writes for the members of a format-2 file (1-D int64 or uint8, a 0-d
-# string): read by _npy_member without numpy's header parser (ast.literal_eval, a fifth of reading
-# a file); any other header is numpy's to read.
-_NPY_HEADER = re.compile(rb"\{'descr': '(<i8|\|u1|<U[0-9]{1,6})', 'fortran_order': False, "
-                         rb"'shape': \(([0-9]{1,12},)?\), \} *\n")
-
-
-def _npy_member(z, name: str) -> np.ndarray:
-    """``z[name]`` of an open npz ``z`` (the same array: a writable copy of the member's values),
-    read directly when its header is one of _NPY_HEADER's and its size what the header says;
-    else (or for a missing member: KeyError) by numpy.  A damaged member raises what zipfile
-    raises reading it (BadZipFile on a wrong CRC-32, zlib.error), as numpy would."""
-    members = z.zip.NameToInfo
-    if name in members or name + ".npy" not in members:
-        return z[name]  # a member of that very name (freebody writes none), or numpy's KeyError
-    data = z.zip.read(name + ".npy")
-    if data[:8] == b"\x93NUMPY\x01\x00":
-        end = 10 + int.from_bytes(data[8:10], "little")
-        m = _NPY_HEADER.fullmatch(data, 10, end)
-        if m:
-            dtype = np.dtype(m.group(1).decode("ascii"))
-            shape = (int(m.group(2)[:-1]),) if m.group(2) else ()
-            count = shape[0] if shape else 1
-            if len(data) - end == count * dtype.itemsize:
-                return np.frombuffer(data, dtype=dtype, count=count, offset=end).reshape(shape).copy()
-    return z[name]
-
-
 def _member(z, name: str, what: str, dtype) -> np.ndarray:
     """Member ``name`` of an open npz ``z``, a 1-D array of ``dtype``; FileRefused otherwise."""
     try:
-        a = _npy_member(z, name)
+        a = z[name]
     except KeyError:
         raise FileRefused(what, f"not a trajectory file (no {name})") from None
     except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # a damaged member
@@ -664,7 +636,7 @@ def _truth_file_block(z, fields: list[str], what: str) -> tuple[np.ndarray, np.n
 def _layout(z, what: str) -> dict:
     """The ``layout`` of an open format-2 file, checked: FileRefused for a newer or unknown format."""
     try:
-        layout = json.loads(str(_npy_member(z, LAYOUT)[()]))
+        layout = json.loads(str(z[LAYOUT][()]))
     except (ValueError, TypeError, IndexError) as e:
         raise FileRefused(what, f"not a trajectory file (its layout: {type(e).__name__})") from None
     version = layout.get("trajectory_format") if isinstance(layout, dict) else None
