@@ -8,7 +8,7 @@ import os
 import sys
 from dataclasses import replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from ..envs.facts import convention_rows, engine_facts  # convention_rows: also read from here
 from ..errors import InputError
@@ -19,6 +19,9 @@ from .progress import ProgressDisplay
 from .records import RunOutput, RunSpec
 
 EXECUTORS = ("local", "dask")
+
+if TYPE_CHECKING:  # the pool's module is imported where a pool is made
+    from .executor import LocalPool
 
 
 def engine_versions(engines: list[str]) -> dict[str, str | None]:
@@ -263,7 +266,7 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
     (``isolate=False``).  ``on_steps(index, done, total)``: a long run's steps so far (local
     workers and this process; not dask's workers).  ``slot_taken``: the local pool's (this process
     steps runs in one of the ``jobs`` slots while it says True)."""
-    from .executor import LocalPool, run_serial
+    from .executor import run_serial
 
     if executor == "dask":
         from .dask_executor import run_dask
@@ -274,15 +277,24 @@ def _execute_tasks(tasks: list, on_done: Callable[[int, dict], None], *, executo
     elif not isolate:
         run_serial(tasks, on_done, on_steps)
     else:
-        from ..envs.engines import interpreters
-
-        pool = LocalPool(min(jobs, max(1, len(tasks))), timeout=timeout, engines=engines,
-                         interpreters=interpreters(engines), slot_taken=slot_taken)
+        pool = local_pool(jobs, len(tasks), engines, timeout, slot_taken)
         try:
             pool.run(tasks, on_done, on_steps)
         finally:
             with _interrupts_deferred():  # a second Ctrl-C must not leave workers behind
                 pool.close(kill=sys.exc_info()[0] is not None)
+
+
+def local_pool(jobs: int, runs: int, engines: list[str], timeout: float | None = None,
+               slot_taken: Callable[[], bool] | None = None) -> LocalPool:
+    """The pool of worker processes that runs ``runs`` runs of ``engines``: ``min(jobs, runs)``
+    workers (at least one), each engine in its own interpreter where it has one
+    (:func:`freebody.envs.engines.interpreters`), ``timeout`` s a run (None: no limit)."""
+    from ..envs.engines import interpreters
+    from .executor import LocalPool
+
+    return LocalPool(min(jobs, max(1, runs)), timeout=timeout, engines=engines,
+                     interpreters=interpreters(engines), slot_taken=slot_taken)
 
 
 def _interrupts_deferred():

@@ -482,20 +482,19 @@ def sweep(settings: SweepSettings, engines: list[str], integrators: list[str] | 
 
 def start_pool(settings: SweepSettings, engines: list[str], integrators: list[str] | None,
                precisions: list[str] | None, jobs: int, isolate: bool = True):
-    """The :class:`~freebody.run.executor.LocalPool` of a sweep's runs (the pool ``run_specs``
+    """The :class:`~freebody.run.executor.LocalPool` of a sweep's runs (:func:`freebody.run.suite.local_pool`, the pool ``run_specs``
     would make: ``min(jobs, runs)`` workers, no time limit), its workers started now, before the
     bodies are drawn, so that their start-up overlaps this process's until the runs are sent;
     None when the runs go elsewhere (``isolate=False``; an engine in an environment of its own,
     whose workers ``run_specs`` picks by the runs)."""
     from ..envs.engines import interpreters
-    from ..run.executor import LocalPool
-    from ..run.suite import check_options
+    from ..run.suite import check_options, local_pool
 
     check_options(jobs, None, None, "local", None, isolate, engines)  # bad input: no worker started
     runs = settings.count * len(first_body_specs(settings, engines, integrators, precisions))
     if not isolate or runs == 0 or interpreters(engines):
         return None
-    pool = LocalPool(min(jobs, runs), engines=engines, interpreters={})
+    pool = local_pool(jobs, runs, engines)
     pool.start(pool.jobs)
     return pool
 
